@@ -1,0 +1,92 @@
+//! The library's error type. Every variant names the file and, where it can, the line, byte
+//! offset or element at fault, so that a user can go straight to the broken record.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// Where in a file a problem was found.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Location {
+    /// Nothing more precise than the file.
+    File,
+    /// 1-based line of a text file.
+    Line(usize),
+    /// Byte offset into a binary file.
+    Byte(u64),
+    /// A named element, such as `vertex 12` or `image 7 (IMG_0001.JPG)`.
+    Element(String),
+}
+
+impl fmt::Display for Location {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Location::File => Ok(()),
+            Location::Line(n) => write!(f, ":{n}"),
+            Location::Byte(b) => write!(f, " (byte {b})"),
+            Location::Element(e) => write!(f, " ({e})"),
+        }
+    }
+}
+
+/// All errors scantex's library returns.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// The operating system refused to read or write a file.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file or directory.
+        path: PathBuf,
+        /// What the operating system said.
+        source: std::io::Error,
+    },
+    /// A file was read but its content is wrong.
+    #[error("{}{location}: {msg}", path.display())]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// Where in the file.
+        location: Location,
+        /// What is wrong, in words a user can act on.
+        msg: String,
+    },
+    /// The inputs are individually valid but do not fit together (a scene without photos, an
+    /// image that references a camera that does not exist, ...).
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// Shorthand used throughout the crate.
+pub type Result<T> = std::result::Result<T, Error>;
+
+impl Error {
+    /// An I/O error on `path`.
+    pub fn io(path: impl AsRef<Path>, source: std::io::Error) -> Self {
+        Error::Io {
+            path: path.as_ref().to_path_buf(),
+            source,
+        }
+    }
+
+    /// A content error in `path` at `location`.
+    pub fn parse(path: impl AsRef<Path>, location: Location, msg: impl Into<String>) -> Self {
+        Error::Parse {
+            path: path.as_ref().to_path_buf(),
+            location,
+            msg: msg.into(),
+        }
+    }
+
+    /// A content error at a 1-based line of a text file.
+    pub fn at_line(path: impl AsRef<Path>, line: usize, msg: impl Into<String>) -> Self {
+        Self::parse(path, Location::Line(line), msg)
+    }
+
+    /// A content error about a named element of a file.
+    pub fn at_element(
+        path: impl AsRef<Path>,
+        element: impl Into<String>,
+        msg: impl Into<String>,
+    ) -> Self {
+        Self::parse(path, Location::Element(element.into()), msg)
+    }
+}

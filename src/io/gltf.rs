@@ -1,0 +1,434 @@
+//! glTF 2.0 input (`.gltf` + buffers, `.glb`) through the `gltf` crate, every triangle primitive
+//! of the default scene with its node transforms applied; and binary glTF output with the
+//! texture embedded, written so that the Khronos validator reports no errors or warnings.
+
+use super::{EncodedTexture, Staged};
+use crate::error::{Error, Result};
+use crate::mesh::{LoadReport, Mesh, TextureSource, UvMap, VertexId};
+use nalgebra::{Matrix3, Matrix4, Point3, Vector2, Vector3};
+use serde_json::json;
+use std::collections::HashMap;
+use std::path::Path;
+
+/// Reads a `.gltf` or `.glb` file.
+pub fn read(path: &Path) -> Result<(Mesh, LoadReport)> {
+    let g = gltf::Gltf::open(path).map_err(|e| match e {
+        gltf::Error::Io(io) => Error::io(path, io),
+        other => Error::parse(path, crate::error::Location::File, other.to_string()),
+    })?;
+    let base = path.parent().unwrap_or(Path::new("."));
+    let buffers = gltf::import_buffers(&g.document, Some(base), g.blob.clone())
+        .map_err(|e| Error::at_element(path, "buffers", e.to_string()))?;
+    let mut out = Builder::default();
+    let roots: Vec<gltf::Node> = match g
+        .document
+        .default_scene()
+        .or_else(|| g.document.scenes().next())
+    {
+        Some(scene) => scene.nodes().collect(),
+        None => Vec::new(),
+    };
+    if roots.is_empty() {
+        // No scene: take every mesh untransformed rather than nothing.
+        for mesh in g.document.meshes() {
+            out.add_mesh(path, &mesh, &Matrix4::identity(), &buffers)?;
+        }
+    } else {
+        for node in roots {
+            out.add_node(path, &node, &Matrix4::identity(), &buffers, 0)?;
+        }
+    }
+    let mut mesh = out.mesh;
+    if out.all_uv && !mesh.faces.is_empty() {
+        mesh.uv = Some(UvMap {
+            coords: out.uv,
+            faces: mesh.faces.iter().map(|f| f.map(|v| v.0)).collect(),
+        });
+    }
+    if out.all_normals && !mesh.positions.is_empty() {
+        mesh.normals = Some(out.normals);
+    }
+    if out.all_colors && !mesh.positions.is_empty() {
+        mesh.colors = Some(out.colors);
+    }
+    mesh.texture = out
+        .texture
+        .and_then(|i| texture_source(&g.document, base, i, &buffers));
+    Ok((mesh, out.report))
+}
+
+#[derive(Default)]
+struct Builder {
+    mesh: Mesh,
+    report: LoadReport,
+    uv: Vec<Vector2<f32>>,
+    normals: Vec<Vector3<f32>>,
+    colors: Vec<[f32; 3]>,
+    all_uv: bool,
+    all_normals: bool,
+    all_colors: bool,
+    started: bool,
+    texture: Option<usize>,
+}
+
+impl Builder {
+    fn add_node(
+        &mut self,
+        path: &Path,
+        node: &gltf::Node,
+        parent: &Matrix4<f64>,
+        buffers: &[gltf::buffer::Data],
+        depth: usize,
+    ) -> Result<()> {
+        if depth > 256 {
+            return Err(Error::at_element(
+                path,
+                format!("node {}", node.index()),
+                "node hierarchy deeper than 256 levels (a cycle?)",
+            ));
+        }
+        let local = Matrix4::from_column_slice(
+            &node
+                .transform()
+                .matrix()
+                .iter()
+                .flatten()
+                .map(|&v| v as f64)
+                .collect::<Vec<_>>(),
+        );
+        let world = parent * local;
+        if let Some(mesh) = node.mesh() {
+            self.add_mesh(path, &mesh, &world, buffers)?;
+        }
+        for child in node.children() {
+            self.add_node(path, &child, &world, buffers, depth + 1)?;
+        }
+        Ok(())
+    }
+
+    fn add_mesh(
+        &mut self,
+        path: &Path,
+        mesh: &gltf::Mesh,
+        world: &Matrix4<f64>,
+        buffers: &[gltf::buffer::Data],
+    ) -> Result<()> {
+        let lin: Matrix3<f64> = world.fixed_view::<3, 3>(0, 0).into();
+        let normal_m = lin.try_inverse().map(|m| m.transpose()).unwrap_or(lin);
+        let flip = lin.determinant() < 0.0;
+        for prim in mesh.primitives() {
+            use gltf::mesh::Mode;
+            let elem = format!("mesh {} primitive {}", mesh.index(), prim.index());
+            let mode = prim.mode();
+            if !matches!(
+                mode,
+                Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
+            ) {
+                continue;
+            }
+            let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
+            let Some(pos) = reader.read_positions() else {
+                return Err(Error::at_element(
+                    path,
+                    elem,
+                    "primitive has no POSITION attribute",
+                ));
+            };
+            let base = self.mesh.positions.len() as u32;
+            let pos: Vec<[f32; 3]> = pos.collect();
+            let n = pos.len();
+            for p in &pos {
+                let v = world.transform_point(&Point3::new(p[0] as f64, p[1] as f64, p[2] as f64));
+                self.mesh.positions.push(v);
+            }
+            let first = !self.started;
+            self.started = true;
+            let uv: Option<Vec<[f32; 2]>> =
+                reader.read_tex_coords(0).map(|t| t.into_f32().collect());
+            self.all_uv = (first || self.all_uv) && uv.as_ref().is_some_and(|u| u.len() == n);
+            self.uv.extend(
+                uv.unwrap_or_default()
+                    .into_iter()
+                    .map(|t| Vector2::new(t[0], 1.0 - t[1]))
+                    .chain(std::iter::repeat(Vector2::zeros()))
+                    .take(n),
+            );
+            let nrm: Option<Vec<[f32; 3]>> = reader.read_normals().map(|i| i.collect());
+            self.all_normals =
+                (first || self.all_normals) && nrm.as_ref().is_some_and(|v| v.len() == n);
+            self.normals.extend(
+                nrm.unwrap_or_default()
+                    .into_iter()
+                    .map(|v| {
+                        let t = normal_m * Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64);
+                        let l = t.norm();
+                        if l > 0.0 {
+                            (t / l).cast()
+                        } else {
+                            Vector3::zeros()
+                        }
+                    })
+                    .chain(std::iter::repeat(Vector3::zeros()))
+                    .take(n),
+            );
+            let col: Option<Vec<[f32; 3]>> =
+                reader.read_colors(0).map(|c| c.into_rgb_f32().collect());
+            self.all_colors =
+                (first || self.all_colors) && col.as_ref().is_some_and(|v| v.len() == n);
+            self.colors.extend(
+                col.unwrap_or_default()
+                    .into_iter()
+                    .chain(std::iter::repeat([1.0; 3]))
+                    .take(n),
+            );
+            let idx: Vec<u32> = match reader.read_indices() {
+                Some(i) => i.into_u32().collect(),
+                None => (0..n as u32).collect(),
+            };
+            if let Some(&bad) = idx.iter().find(|&&i| i as usize >= n) {
+                return Err(Error::at_element(
+                    path,
+                    elem,
+                    format!("index {bad} is out of range ({n} vertices)"),
+                ));
+            }
+            let tris: Vec<[u32; 3]> = match mode {
+                Mode::Triangles => {
+                    if idx.len() % 3 != 0 {
+                        self.report.degenerate_faces += 1;
+                    }
+                    idx.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
+                }
+                Mode::TriangleStrip => (2..idx.len())
+                    .map(|i| {
+                        if i % 2 == 0 {
+                            [idx[i - 2], idx[i - 1], idx[i]]
+                        } else {
+                            [idx[i - 1], idx[i - 2], idx[i]]
+                        }
+                    })
+                    .collect(),
+                _ => (2..idx.len())
+                    .map(|i| [idx[0], idx[i - 1], idx[i]])
+                    .collect(),
+            };
+            for t in tris {
+                let t = if flip { [t[0], t[2], t[1]] } else { t };
+                self.mesh.faces.push(t.map(|i| VertexId(base + i)));
+            }
+            if self.texture.is_none() {
+                self.texture = prim
+                    .material()
+                    .pbr_metallic_roughness()
+                    .base_color_texture()
+                    .map(|t| t.texture().source().index());
+            }
+        }
+        Ok(())
+    }
+}
+
+fn texture_source(
+    doc: &gltf::Document,
+    base: &Path,
+    image_index: usize,
+    buffers: &[gltf::buffer::Data],
+) -> Option<TextureSource> {
+    let image = doc.images().nth(image_index)?;
+    match image.source() {
+        gltf::image::Source::View { view, .. } => {
+            let buf = buffers.get(view.buffer().index())?;
+            let bytes = buf.0.get(view.offset()..view.offset() + view.length())?;
+            Some(TextureSource::Embedded(bytes.to_vec()))
+        }
+        // Textures inlined as data URIs are not kept (rare in scans; the mesh still loads).
+        gltf::image::Source::Uri { uri, .. } if uri.starts_with("data:") => None,
+        gltf::image::Source::Uri { uri, .. } => {
+            Some(TextureSource::File(base.join(percent_decode(uri))))
+        }
+    }
+}
+
+/// Minimal percent-decoding for URIs such as `my%20texture.png`.
+fn percent_decode(s: &str) -> String {
+    let b = s.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%' && i + 2 < b.len() {
+            if let Some(v) = std::str::from_utf8(&b[i + 1..i + 3])
+                .ok()
+                .and_then(|h| u8::from_str_radix(h, 16).ok())
+            {
+                out.push(v);
+                i += 3;
+                continue;
+            }
+        }
+        out.push(b[i]);
+        i += 1;
+    }
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+/// Writes a binary glTF (`.glb`) with positions, normals, UVs (if any) and the texture
+/// embedded. glTF stores attributes per vertex, so vertices on UV seams are split.
+pub fn write_glb(
+    staged: &mut Staged,
+    path: &Path,
+    mesh: &Mesh,
+    texture: Option<&EncodedTexture>,
+) -> Result<()> {
+    // One output vertex per distinct (position, uv) pair.
+    let mut remap: HashMap<(u32, u32), u32> = HashMap::new();
+    let mut src: Vec<(u32, u32)> = Vec::new();
+    let mut indices: Vec<u32> = Vec::with_capacity(mesh.faces.len() * 3);
+    for (f, face) in mesh.faces.iter().enumerate() {
+        for (k, vid) in face.iter().enumerate() {
+            let key = (vid.0, mesh.uv.as_ref().map_or(0, |uv| uv.faces[f][k]));
+            let next = src.len() as u32;
+            let id = *remap.entry(key).or_insert_with(|| {
+                src.push(key);
+                next
+            });
+            indices.push(id);
+        }
+    }
+    let normals: Vec<Vector3<f32>> = match &mesh.normals {
+        Some(n) => n.clone(),
+        None => mesh.vertex_normals().iter().map(|n| n.cast()).collect(),
+    };
+    let mut bin: Vec<u8> = Vec::new();
+    let mut views = Vec::new();
+    let mut accessors = Vec::new();
+    let mut push_view = |bin: &mut Vec<u8>, bytes: &[u8], target: Option<u32>| -> usize {
+        while bin.len() % 4 != 0 {
+            bin.push(0);
+        }
+        let mut v = json!({"buffer": 0, "byteOffset": bin.len(), "byteLength": bytes.len()});
+        if let Some(t) = target {
+            v["target"] = json!(t);
+        }
+        bin.extend_from_slice(bytes);
+        views.push(v);
+        views.len() - 1
+    };
+    const ARRAY_BUFFER: u32 = 34962;
+    const ELEMENT_ARRAY_BUFFER: u32 = 34963;
+
+    // Positions (f32, with the min/max glTF requires).
+    let pos: Vec<[f32; 3]> = src
+        .iter()
+        .map(|&(v, _)| mesh.positions[v as usize].coords.cast::<f32>().into())
+        .collect();
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for p in &pos {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let view = push_view(
+        &mut bin,
+        &f32_bytes(pos.iter().flatten()),
+        Some(ARRAY_BUFFER),
+    );
+    accessors.push(
+        json!({"bufferView": view, "componentType": 5126, "count": pos.len(),
+        "type": "VEC3", "min": lo, "max": hi}),
+    );
+    let mut attributes = json!({"POSITION": 0});
+
+    // Normals must be unit length; a vertex with no defined normal gets +Z.
+    let nrm: Vec<[f32; 3]> = src
+        .iter()
+        .map(|&(v, _)| {
+            let n = normals[v as usize];
+            let l = n.norm();
+            if l > 0.5 {
+                (n / l).into()
+            } else {
+                [0.0, 0.0, 1.0]
+            }
+        })
+        .collect();
+    let view = push_view(
+        &mut bin,
+        &f32_bytes(nrm.iter().flatten()),
+        Some(ARRAY_BUFFER),
+    );
+    accessors.push(
+        json!({"bufferView": view, "componentType": 5126, "count": nrm.len(), "type": "VEC3"}),
+    );
+    attributes["NORMAL"] = json!(accessors.len() - 1);
+
+    if let Some(uv) = &mesh.uv {
+        // glTF's texture origin is the top-left corner: flip v.
+        let t: Vec<[f32; 2]> = src
+            .iter()
+            .map(|&(_, t)| {
+                let c = uv.coords[t as usize];
+                [c.x, 1.0 - c.y]
+            })
+            .collect();
+        let view = push_view(&mut bin, &f32_bytes(t.iter().flatten()), Some(ARRAY_BUFFER));
+        accessors.push(
+            json!({"bufferView": view, "componentType": 5126, "count": t.len(), "type": "VEC2"}),
+        );
+        attributes["TEXCOORD_0"] = json!(accessors.len() - 1);
+    }
+    let idx_bytes: Vec<u8> = indices.iter().flat_map(|i| i.to_le_bytes()).collect();
+    let view = push_view(&mut bin, &idx_bytes, Some(ELEMENT_ARRAY_BUFFER));
+    accessors.push(json!({"bufferView": view, "componentType": 5125, "count": indices.len(), "type": "SCALAR"}));
+    let indices_accessor = accessors.len() - 1;
+
+    let mut primitive = json!({"attributes": attributes, "indices": indices_accessor, "mode": 4});
+    let mut doc = json!({
+        "asset": {"version": "2.0", "generator": concat!("scantex ", env!("CARGO_PKG_VERSION"))},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+    });
+    if let (Some(tex), Some(_)) = (texture, &mesh.uv) {
+        let view = push_view(&mut bin, &tex.bytes, None);
+        doc["images"] = json!([{"bufferView": view, "mimeType": tex.mime}]);
+        // Linear filtering with mipmaps, clamped: charts must not wrap around the atlas.
+        doc["samplers"] =
+            json!([{"magFilter": 9729, "minFilter": 9987, "wrapS": 33071, "wrapT": 33071}]);
+        doc["textures"] = json!([{"sampler": 0, "source": 0}]);
+        doc["materials"] = json!([{
+            "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}, "metallicFactor": 0.0, "roughnessFactor": 1.0},
+            "doubleSided": false
+        }]);
+        primitive["material"] = json!(0);
+    }
+    doc["meshes"] = json!([{"primitives": [primitive]}]);
+    while bin.len() % 4 != 0 {
+        bin.push(0);
+    }
+    doc["buffers"] = json!([{"byteLength": bin.len()}]);
+    doc["bufferViews"] = json!(views);
+    doc["accessors"] = json!(accessors);
+
+    let mut js = serde_json::to_vec(&doc).expect("JSON of plain values always serialises");
+    while js.len() % 4 != 0 {
+        js.push(b' ');
+    }
+    let total = 12 + 8 + js.len() + 8 + bin.len();
+    let mut out = Vec::with_capacity(total);
+    out.extend(b"glTF");
+    out.extend(2u32.to_le_bytes());
+    out.extend((total as u32).to_le_bytes());
+    out.extend((js.len() as u32).to_le_bytes());
+    out.extend(b"JSON");
+    out.extend(&js);
+    out.extend((bin.len() as u32).to_le_bytes());
+    out.extend(b"BIN\0");
+    out.extend(&bin);
+    staged.write(path, &out)
+}
+
+fn f32_bytes<'a>(v: impl Iterator<Item = &'a f32>) -> Vec<u8> {
+    v.flat_map(|f| f.to_le_bytes()).collect()
+}

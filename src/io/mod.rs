@@ -1,0 +1,162 @@
+//! Reading and writing files: meshes (OBJ, PLY, glTF/GLB), images, and atomic output.
+//! This is the only module that opens files (besides the COLMAP format in `camera::colmap`,
+//! which uses [`write_atomic`]).
+
+pub mod gltf;
+pub mod image;
+pub mod obj;
+pub mod ply;
+
+use crate::error::{Error, Result};
+use crate::mesh::{LoadReport, Mesh};
+use std::path::{Path, PathBuf};
+
+/// Mesh file formats scantex reads and writes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MeshFormat {
+    /// Wavefront OBJ (+ MTL + texture image).
+    Obj,
+    /// Stanford PLY.
+    Ply,
+    /// glTF 2.0, JSON (`.gltf` with external buffers).
+    Gltf,
+    /// glTF 2.0, binary container (`.glb`).
+    Glb,
+}
+
+impl MeshFormat {
+    /// The format for a file name's extension (case-insensitive).
+    pub fn from_path(path: &Path) -> Option<Self> {
+        let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+        match ext.as_str() {
+            "obj" => Some(MeshFormat::Obj),
+            "ply" => Some(MeshFormat::Ply),
+            "gltf" => Some(MeshFormat::Gltf),
+            "glb" => Some(MeshFormat::Glb),
+            _ => None,
+        }
+    }
+}
+
+/// Reads a mesh (OBJ, PLY, glTF or GLB, by extension), validates it and drops degenerate
+/// faces. The report says what was dropped or triangulated.
+pub fn read_mesh(path: &Path) -> Result<(Mesh, LoadReport)> {
+    let format = MeshFormat::from_path(path).ok_or_else(|| {
+        Error::at_element(
+            path,
+            "file name",
+            "unknown mesh format: expected .obj, .ply, .gltf or .glb",
+        )
+    })?;
+    if !path.is_file() {
+        return Err(Error::io(
+            path,
+            std::io::Error::new(std::io::ErrorKind::NotFound, "mesh file not found"),
+        ));
+    }
+    let (mut mesh, mut report) = match format {
+        MeshFormat::Obj => obj::read(path)?,
+        MeshFormat::Ply => ply::read(path)?,
+        MeshFormat::Gltf | MeshFormat::Glb => gltf::read(path)?,
+    };
+    let v = mesh.validate(path)?;
+    report.degenerate_faces += v.degenerate_faces;
+    Ok((mesh, report))
+}
+
+/// A temporary file next to `path`, renamed over it by [`Staged::commit`] and deleted if the
+/// value is dropped uncommitted. Keeps half-written outputs from ever carrying a final name.
+pub struct Staged {
+    files: Vec<(PathBuf, PathBuf)>,
+}
+
+impl Staged {
+    /// An empty group of staged files.
+    pub fn new() -> Self {
+        Staged { files: Vec::new() }
+    }
+
+    /// Writes `bytes` to a temporary name beside `path`; nothing appears at `path` until
+    /// [`Staged::commit`].
+    pub fn write(&mut self, path: &Path, bytes: &[u8]) -> Result<()> {
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let tmp = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
+        std::fs::write(&tmp, bytes).map_err(|e| {
+            let _ = std::fs::remove_file(&tmp);
+            Error::io(path, e)
+        })?;
+        self.files.push((tmp, path.to_path_buf()));
+        Ok(())
+    }
+
+    /// Renames every staged file to its final name.
+    pub fn commit(mut self) -> Result<()> {
+        for (tmp, dst) in std::mem::take(&mut self.files) {
+            std::fs::rename(&tmp, &dst).map_err(|e| Error::io(&dst, e))?;
+        }
+        Ok(())
+    }
+}
+
+impl Default for Staged {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Drop for Staged {
+    fn drop(&mut self) {
+        for (tmp, _) in &self.files {
+            let _ = std::fs::remove_file(tmp);
+        }
+    }
+}
+
+/// Writes `bytes` to `path` through a temporary file and a rename.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let mut s = Staged::new();
+    s.write(path, bytes)?;
+    s.commit()
+}
+
+/// An encoded texture image ready to be written beside or inside a mesh.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EncodedTexture {
+    /// The encoded bytes (PNG or JPEG: the only images glTF allows).
+    pub bytes: Vec<u8>,
+    /// MIME type, `image/png` or `image/jpeg`.
+    pub mime: &'static str,
+}
+
+impl EncodedTexture {
+    /// File extension matching the MIME type.
+    pub fn extension(&self) -> &'static str {
+        if self.mime == "image/jpeg" {
+            "jpg"
+        } else {
+            "png"
+        }
+    }
+}
+
+/// Writes `mesh` in the format its extension names (OBJ writes `.mtl` and the texture beside
+/// it). All files appear together or not at all.
+pub fn write_mesh(path: &Path, mesh: &Mesh, texture: Option<&EncodedTexture>) -> Result<()> {
+    let mut staged = Staged::new();
+    match MeshFormat::from_path(path) {
+        Some(MeshFormat::Obj) => obj::write(&mut staged, path, mesh, texture)?,
+        Some(MeshFormat::Ply) => ply::write(&mut staged, path, mesh)?,
+        Some(MeshFormat::Glb) => gltf::write_glb(&mut staged, path, mesh, texture)?,
+        Some(MeshFormat::Gltf) | None => {
+            return Err(Error::at_element(
+                path,
+                "file name",
+                "mesh output must be .obj, .ply or .glb",
+            ))
+        }
+    }
+    staged.commit()
+}

@@ -1,0 +1,31 @@
+//! scantex: colour for 3D-scanned objects. A registered mesh and calibrated photographs go in;
+//! one seamless, hole-free texture atlas comes out.
+//!
+//! # The pipeline on one page
+//!
+//! Each stage is a function of plain typed data; `docs/architecture.md` has the full picture.
+//! Stages marked *(planned)* are not built yet; their signatures are the design.
+//!
+//! | stage | function | in -> out |
+//! |---|---|---|
+//! | 0. load | [`scene::Scene::load`] | [`scene::SceneSpec`] -> [`mesh::Mesh`], [`camera::colmap::Reconstruction`], [`scene::Photo`]s (lazily decoded) |
+//! | 1. atlas *(planned)* | `atlas::parameterize(&Mesh, &[Photo], &AtlasOptions)` | -> `Atlas` (charts, per-corner UVs, pages) |
+//! | 2. bind *(planned)* | `bind::bind(&Mesh, &[Photo], &BindOptions)` | -> `Binding` (valid photos per vertex) |
+//! | 3. resample *(planned)* | `resample::resample(&Mesh, &Atlas, &Binding, &[Photo], ..)` | -> `Layers` (per-photo atlas layers, triangle classes) |
+//! | 4. merge *(planned)* | `merge::merge(&Layers, &Masks, &MergeOptions)` | -> `Texture` + unseen mask |
+//! | 5. restore *(planned)* | `restore::inpaint(&Texture, &Mask, &RestoreOptions)` | -> `Texture` (every texel filled) |
+//! | 6. synthesize *(planned)* | `synth::fill_surface(&Mesh, &Atlas, &Texture, ..)` | -> `Texture` (large unseen regions) |
+//! | out | [`io::write_mesh`] | [`mesh::Mesh`] + [`io::EncodedTexture`] -> OBJ/MTL/PNG, PLY, GLB |
+//!
+//! Conventions: COLMAP's camera conventions throughout ([`camera`]); texture coordinates with
+//! origin at the lower-left ([`mesh::UvMap`]); every error is an [`Error`] naming the file and
+//! the line, byte or element at fault.
+
+pub mod camera;
+pub mod error;
+pub mod info;
+pub mod io;
+pub mod mesh;
+pub mod scene;
+
+pub use error::{Error, Location, Result};

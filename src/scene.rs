@@ -1,0 +1,323 @@
+//! A scene: the mesh, the COLMAP model, the photographs and optional masks a user points at,
+//! either as one directory (`mesh.*`, `sparse/` or `sparse/0/`, `images/`, `masks/`) or as
+//! explicit paths. Photographs are only probed (header) here and decoded on demand, one at a
+//! time, so a scene of 1,000 photos never holds them all in memory.
+
+use crate::camera::colmap::{self, Reconstruction};
+use crate::camera::PosedCamera;
+use crate::error::{Error, Result};
+use crate::io::{self, MeshFormat};
+use crate::mesh::{LoadReport, Mesh};
+use image::{GrayImage, Rgb32FImage};
+use std::path::{Path, PathBuf};
+
+/// What the user pointed at: a scene directory and/or explicit paths (explicit paths win).
+#[derive(Debug, Clone, Default)]
+pub struct SceneSpec {
+    /// Scene directory holding a mesh file, `sparse/` (or `sparse/0/`), `images/`, `masks/`.
+    pub dir: Option<PathBuf>,
+    /// Mesh file (.obj, .ply, .gltf, .glb).
+    pub mesh: Option<PathBuf>,
+    /// COLMAP model directory (holding `cameras.bin|txt`), or a folder with `sparse/`.
+    pub colmap: Option<PathBuf>,
+    /// Directory of photographs, named as in the COLMAP model.
+    pub images: Option<PathBuf>,
+    /// Directory of object masks (white = object), named like the photos (optionally `.png`
+    /// appended, as COLMAP does).
+    pub masks: Option<PathBuf>,
+}
+
+/// The resolved locations of a scene's parts; `None` where the scene has no such part.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct ScenePaths {
+    /// Mesh file.
+    pub mesh: Option<PathBuf>,
+    /// COLMAP model directory.
+    pub colmap: Option<PathBuf>,
+    /// Photographs directory.
+    pub images: Option<PathBuf>,
+    /// Masks directory.
+    pub masks: Option<PathBuf>,
+}
+
+impl SceneSpec {
+    /// Finds each part: explicit paths first, then the conventional places in `dir`.
+    pub fn resolve(&self) -> Result<ScenePaths> {
+        if let Some(d) = &self.dir {
+            if !d.is_dir() {
+                return Err(Error::io(
+                    d,
+                    std::io::Error::new(std::io::ErrorKind::NotFound, "scene directory not found"),
+                ));
+            }
+        }
+        let mesh = match (&self.mesh, &self.dir) {
+            (Some(m), _) => Some(m.clone()),
+            (None, Some(d)) => find_mesh(d)?,
+            (None, None) => None,
+        };
+        let colmap = match (&self.colmap, &self.dir) {
+            (Some(c), _) => Some(if colmap::detect_format(c).is_some() {
+                c.clone()
+            } else {
+                colmap::find_model_dir(c).ok_or_else(|| {
+                    Error::Invalid(format!(
+                        "{}: no COLMAP model here (expected cameras.bin or cameras.txt, or sparse/0/)",
+                        c.display()
+                    ))
+                })?
+            }),
+            (None, Some(d)) => colmap::find_model_dir(d),
+            (None, None) => None,
+        };
+        let images = self.images.clone().or_else(|| {
+            self.dir
+                .as_ref()
+                .map(|d| d.join("images"))
+                .filter(|p| p.is_dir())
+        });
+        let masks = self.masks.clone().or_else(|| {
+            self.dir
+                .as_ref()
+                .map(|d| d.join("masks"))
+                .filter(|p| p.is_dir())
+        });
+        for (what, p) in [("images", &images), ("masks", &masks)] {
+            if let Some(p) = p {
+                if !p.is_dir() {
+                    return Err(Error::io(
+                        p,
+                        std::io::Error::new(
+                            std::io::ErrorKind::NotFound,
+                            format!("{what} directory not found"),
+                        ),
+                    ));
+                }
+            }
+        }
+        Ok(ScenePaths {
+            mesh,
+            colmap,
+            images,
+            masks,
+        })
+    }
+}
+
+/// The single mesh file at the top of `dir`, if any; an error if there are several.
+fn find_mesh(dir: &Path) -> Result<Option<PathBuf>> {
+    let entries = std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))?;
+    let mut found: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_file() && MeshFormat::from_path(p).is_some())
+        .collect();
+    found.sort();
+    match found.len() {
+        0 => Ok(None),
+        1 => Ok(found.pop()),
+        _ => Err(Error::Invalid(format!(
+            "{}: several mesh files ({}); choose one with --mesh",
+            dir.display(),
+            found
+                .iter()
+                .map(|p| p
+                    .file_name()
+                    .unwrap_or_default()
+                    .to_string_lossy()
+                    .into_owned())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ))),
+    }
+}
+
+/// One registered photograph: where its pixels are and how it was taken.
+#[derive(Debug, Clone)]
+pub struct Photo {
+    /// COLMAP image id.
+    pub image_id: u32,
+    /// Name in the COLMAP model (relative path under the images directory).
+    pub name: String,
+    /// Full path of the photograph file.
+    pub path: PathBuf,
+    /// Full path of its mask, if the scene has one for it.
+    pub mask: Option<PathBuf>,
+    /// Camera and pose.
+    pub view: PosedCamera,
+}
+
+/// What probing a photograph's file found.
+#[derive(Debug, Clone, PartialEq)]
+pub enum PhotoStatus {
+    /// Present, readable, and the size its camera says.
+    Ok,
+    /// No file at the path.
+    Missing,
+    /// The header could not be read.
+    Unreadable(String),
+    /// The file's size differs from its camera's.
+    WrongSize {
+        /// Size in the file.
+        found: (u32, u32),
+        /// Size the camera declares.
+        expected: (u32, u32),
+    },
+}
+
+impl Photo {
+    /// Probes the file header (no pixel decoding).
+    pub fn status(&self) -> PhotoStatus {
+        if !self.path.is_file() {
+            return PhotoStatus::Missing;
+        }
+        match io::image::dimensions(&self.path) {
+            Err(e) => PhotoStatus::Unreadable(e.to_string()),
+            Ok(found) => {
+                let expected = (self.view.camera.width, self.view.camera.height);
+                if found == expected {
+                    PhotoStatus::Ok
+                } else {
+                    PhotoStatus::WrongSize { found, expected }
+                }
+            }
+        }
+    }
+
+    /// Probes the file and turns any problem into an error naming it.
+    pub fn check(&self) -> Result<()> {
+        match self.status() {
+            PhotoStatus::Ok => Ok(()),
+            PhotoStatus::Missing => Err(Error::io(
+                &self.path,
+                std::io::Error::new(
+                    std::io::ErrorKind::NotFound,
+                    format!("photograph of image {} not found", self.image_id),
+                ),
+            )),
+            PhotoStatus::Unreadable(msg) => Err(Error::Invalid(msg)),
+            PhotoStatus::WrongSize { found, expected } => Err(Error::at_element(
+                &self.path,
+                format!("image {}", self.image_id),
+                format!(
+                    "photograph is {}x{} but camera {} is {}x{}",
+                    found.0, found.1, self.view.camera.id, expected.0, expected.1
+                ),
+            )),
+        }
+    }
+
+    /// Decodes the photograph as RGB floats in [0, 1], checking its size against the camera.
+    pub fn load(&self) -> Result<Rgb32FImage> {
+        let img = io::image::read_rgb32f(&self.path)?;
+        let expected = (self.view.camera.width, self.view.camera.height);
+        if img.dimensions() != expected {
+            return Err(Error::at_element(
+                &self.path,
+                format!("image {}", self.image_id),
+                format!(
+                    "photograph is {}x{} but its camera is {}x{}",
+                    img.width(),
+                    img.height(),
+                    expected.0,
+                    expected.1
+                ),
+            ));
+        }
+        Ok(img)
+    }
+
+    /// Decodes the mask (white = object) if there is one, checking its size.
+    pub fn load_mask(&self) -> Result<Option<GrayImage>> {
+        let Some(p) = &self.mask else { return Ok(None) };
+        let m = io::image::read(p)?.into_luma8();
+        let expected = (self.view.camera.width, self.view.camera.height);
+        if m.dimensions() != expected {
+            return Err(Error::at_element(
+                p,
+                format!("mask of image {}", self.image_id),
+                format!(
+                    "mask is {}x{} but its camera is {}x{}",
+                    m.width(),
+                    m.height(),
+                    expected.0,
+                    expected.1
+                ),
+            ));
+        }
+        Ok(Some(m))
+    }
+}
+
+/// A loaded scene. Only what the spec pointed at is present.
+#[derive(Debug, Clone)]
+pub struct Scene {
+    /// Where each part came from.
+    pub paths: ScenePaths,
+    /// The mesh with what loading dropped, if the scene has one.
+    pub mesh: Option<(Mesh, LoadReport)>,
+    /// The COLMAP model, if the scene has one.
+    pub reconstruction: Option<Reconstruction>,
+    /// Registered photographs, in image-id order (empty without a COLMAP model).
+    pub photos: Vec<Photo>,
+}
+
+impl Scene {
+    /// Loads the mesh and the COLMAP model and lists the photographs (not decoded).
+    pub fn load(spec: &SceneSpec) -> Result<Scene> {
+        let paths = spec.resolve()?;
+        if paths.mesh.is_none() && paths.colmap.is_none() {
+            return Err(Error::Invalid(
+                "nothing to load: give a scene directory, or --mesh and/or --colmap".into(),
+            ));
+        }
+        let mesh = paths.mesh.as_deref().map(io::read_mesh).transpose()?;
+        let reconstruction = paths.colmap.as_deref().map(colmap::read).transpose()?;
+        let photos = match &reconstruction {
+            Some(rec) => photos_of(rec, &paths),
+            None => Vec::new(),
+        };
+        Ok(Scene {
+            paths,
+            mesh,
+            reconstruction,
+            photos,
+        })
+    }
+
+    /// Checks every photograph's file (header only); the first problem is the error.
+    pub fn check_photos(&self) -> Result<()> {
+        self.photos.iter().try_for_each(Photo::check)
+    }
+}
+
+fn photos_of(rec: &Reconstruction, paths: &ScenePaths) -> Vec<Photo> {
+    let images_dir = paths
+        .images
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("images"));
+    rec.images
+        .values()
+        .map(|img| {
+            let mask = paths.masks.as_ref().and_then(|m| {
+                let stem = Path::new(&img.name).with_extension("png");
+                [
+                    m.join(&img.name),
+                    m.join(format!("{}.png", img.name)),
+                    m.join(stem),
+                ]
+                .into_iter()
+                .find(|p| p.is_file())
+            });
+            Photo {
+                image_id: img.id,
+                name: img.name.clone(),
+                path: images_dir.join(&img.name),
+                mask,
+                view: PosedCamera {
+                    camera: rec.cameras[&img.camera_id].clone(),
+                    pose: img.pose,
+                },
+            }
+        })
+        .collect()
+}

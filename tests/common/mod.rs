@@ -1,0 +1,58 @@
+//! Helpers shared by the integration tests.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+
+/// The project root.
+pub fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// A path under `../shared/data`. When it is missing: panics under CI (`CI=true`), so the
+/// real-data checks cannot silently vanish there; elsewhere prints why and returns `None`.
+pub fn shared_data(rel: &str) -> Option<PathBuf> {
+    let p = root().join("..").join("shared").join("data").join(rel);
+    if p.exists() {
+        return Some(p);
+    }
+    if std::env::var("CI").is_ok_and(|v| v == "true") {
+        panic!(
+            "real data {} is missing and CI=true: the check cannot be skipped",
+            p.display()
+        );
+    }
+    eprintln!("skipping: real data {} is missing", p.display());
+    None
+}
+
+/// Reads a committed JSON reference file under `calib/`.
+pub fn calib_json(rel: &str) -> serde_json::Value {
+    let p = root().join("calib").join(rel);
+    let s = std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+    serde_json::from_str(&s).unwrap()
+}
+
+/// `v` as a vector of f64 (a JSON array of numbers).
+pub fn f64s(v: &serde_json::Value) -> Vec<f64> {
+    v.as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect()
+}
+
+/// `v` as rows of f64 (a JSON array of arrays).
+pub fn rows(v: &serde_json::Value) -> Vec<Vec<f64>> {
+    v.as_array().unwrap().iter().map(f64s).collect()
+}
+
+/// Copies every file of `src` (not recursive) into `dst`.
+pub fn copy_dir(src: &Path, dst: &Path) {
+    std::fs::create_dir_all(dst).unwrap();
+    for e in std::fs::read_dir(src).unwrap() {
+        let e = e.unwrap();
+        if e.path().is_file() {
+            std::fs::copy(e.path(), dst.join(e.file_name())).unwrap();
+        }
+    }
+}
