@@ -51,9 +51,15 @@ pub fn read(path: &Path) -> Result<(Mesh, LoadReport)> {
     if out.all_colors && !mesh.positions.is_empty() {
         mesh.colors = Some(out.colors);
     }
+    // The first candidate that exists: some scans name a base-colour file they do not ship.
     mesh.texture = out
-        .texture
-        .and_then(|i| texture_source(&g.document, base, i, &buffers));
+        .textures
+        .iter()
+        .filter_map(|&i| texture_source(&g.document, base, i, &buffers))
+        .find(|t| match t {
+            TextureSource::File(p) => p.is_file(),
+            TextureSource::Embedded(_) => true,
+        });
     Ok((mesh, out.report))
 }
 
@@ -68,7 +74,8 @@ struct Builder {
     all_normals: bool,
     all_colors: bool,
     started: bool,
-    texture: Option<usize>,
+    /// Candidate colour images: base colour, then the spec-gloss diffuse (older scans).
+    textures: Vec<usize>,
 }
 
 impl Builder {
@@ -216,12 +223,15 @@ impl Builder {
                 let t = if flip { [t[0], t[2], t[1]] } else { t };
                 self.mesh.faces.push(t.map(|i| VertexId(base + i)));
             }
-            if self.texture.is_none() {
-                self.texture = prim
-                    .material()
-                    .pbr_metallic_roughness()
-                    .base_color_texture()
-                    .map(|t| t.texture().source().index());
+            if self.textures.is_empty() {
+                let mat = prim.material();
+                let base = mat.pbr_metallic_roughness().base_color_texture();
+                let diffuse = mat.pbr_specular_glossiness().and_then(|s| s.diffuse_texture());
+                self.textures = base
+                    .into_iter()
+                    .chain(diffuse)
+                    .map(|t| t.texture().source().index())
+                    .collect();
             }
         }
         Ok(())

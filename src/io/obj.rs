@@ -1,5 +1,9 @@
-//! Wavefront OBJ (+ MTL) through `tobj`, with our own line locator for its errors (tobj reports
-//! what went wrong but not where) and fan triangulation so we can count polygons.
+//! Wavefront OBJ (+ MTL). Our own parser rather than `tobj`: tobj renumbers vertices in
+//! first-use order (so a write -> read round trip would not keep vertex order, and per-vertex
+//! data from elsewhere would no longer line up) and reports errors without line numbers.
+//! Supported: `v` (with optional RGB colour), `vt`, `vn`, `f` with any corner count and
+//! negative (relative) indices, `mtllib` and the first `map_Kd`. Other statements (`o`, `g`,
+//! `s`, `usemtl`, `l`, `p`, ...) are ignored.
 
 use super::{EncodedTexture, Staged};
 use crate::error::{Error, Result};
@@ -8,186 +12,151 @@ use nalgebra::{Point3, Vector2, Vector3};
 use std::fmt::Write as _;
 use std::path::Path;
 
-/// Reads an OBJ file: all objects and groups merged, polygons fan-triangulated, normals
-/// averaged per position, UVs kept per corner, the first material's `map_Kd` as texture.
+/// Reads an OBJ file: polygons fan-triangulated, normals averaged per vertex, UVs per corner,
+/// vertex colours if every vertex has them, the MTL's first `map_Kd` as texture.
 pub fn read(path: &Path) -> Result<(Mesh, LoadReport)> {
-    let opts = tobj::LoadOptions {
-        triangulate: false,
-        single_index: false,
-        ignore_points: true,
-        ignore_lines: true,
-    };
-    let (models, materials) = tobj::load_obj(path, &opts).map_err(|e| locate_error(path, e))?;
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    parse(path, &bytes)
+}
+
+/// Parses OBJ text; `path` names the file in errors and locates the MTL. Never panics.
+pub fn parse(path: &Path, bytes: &[u8]) -> Result<(Mesh, LoadReport)> {
+    let text = String::from_utf8_lossy(bytes);
     let mut mesh = Mesh::default();
     let mut report = LoadReport::default();
-    let mut uv = UvMap {
-        coords: Vec::new(),
-        faces: Vec::new(),
-    };
-    let mut normal_sum: Vec<Vector3<f64>> = Vec::new();
-    let mut any_normals = false;
-    let mut any_colors = false;
     let mut colors: Vec<[f32; 3]> = Vec::new();
-    let mut all_have_uv = true;
-    for model in &models {
-        let m = &model.mesh;
-        let v0 = mesh.positions.len() as u32;
-        let t0 = uv.coords.len() as u32;
-        mesh.positions.extend(
-            m.positions
-                .chunks_exact(3)
-                .map(|c| Point3::new(c[0], c[1], c[2])),
-        );
-        uv.coords.extend(
-            m.texcoords
-                .chunks_exact(2)
-                .map(|c| Vector2::new(c[0] as f32, c[1] as f32)),
-        );
-        let nv = m.positions.len() / 3;
-        if m.vertex_color.len() == m.positions.len() && !m.vertex_color.is_empty() {
-            any_colors = true;
-            colors.extend(
-                m.vertex_color
-                    .chunks_exact(3)
-                    .map(|c| [c[0] as f32, c[1] as f32, c[2] as f32]),
-            );
-        } else {
-            colors.extend(std::iter::repeat_n([1.0f32; 3], nv));
-        }
-        normal_sum.extend(std::iter::repeat_n(Vector3::zeros(), nv));
-        let has_uv = !m.texcoord_indices.is_empty();
-        let has_n = !m.normal_indices.is_empty();
-        all_have_uv &= has_uv || m.indices.is_empty();
-        // Face arities are empty when every face is a triangle.
-        let arities: Vec<usize> = if m.face_arities.is_empty() {
-            vec![3; m.indices.len() / 3]
-        } else {
-            m.face_arities.iter().map(|&a| a as usize).collect()
+    let mut texcoords: Vec<Vector2<f32>> = Vec::new();
+    let mut normals: Vec<Vector3<f64>> = Vec::new();
+    let mut normal_sum: Vec<Vector3<f64>> = Vec::new();
+    let mut uv_faces: Vec<[u32; 3]> = Vec::new();
+    let mut faces_without_uv = 0usize;
+    let mut any_normal = false;
+    let mut mtllib: Option<String> = None;
+    for (i, raw) in text.lines().enumerate() {
+        let ln = i + 1;
+        let line = raw.split('#').next().unwrap_or("").trim();
+        let mut toks = line.split_whitespace();
+        let Some(kind) = toks.next() else { continue };
+        let nums = |toks: std::str::SplitWhitespace, min: usize, what: &str| -> Result<Vec<f64>> {
+            let v: Vec<f64> = toks
+                .map(|t| t.parse::<f64>())
+                .collect::<std::result::Result<_, _>>()
+                .map_err(|_| Error::at_line(path, ln, format!("{what}: '{line}' has a value that is not a number")))?;
+            if v.len() < min {
+                return Err(Error::at_line(path, ln, format!("{what}: expected at least {min} values, found {}", v.len())));
+            }
+            if let Some(k) = v.iter().position(|x| !x.is_finite()) {
+                return Err(Error::at_line(path, ln, format!("{what}: value {} is not finite", k + 1)));
+            }
+            Ok(v)
         };
-        let mut start = 0;
-        for a in arities {
-            let corners = start..start + a;
-            start += a;
-            if a < 3 {
-                report.degenerate_faces += 1;
-                continue;
+        match kind {
+            "v" => {
+                let v = nums(toks, 3, "vertex")?;
+                mesh.positions.push(Point3::new(v[0], v[1], v[2]));
+                normal_sum.push(Vector3::zeros());
+                if v.len() >= 6 {
+                    colors.push([v[3] as f32, v[4] as f32, v[5] as f32]);
+                }
             }
-            if a > 3 {
-                report.polygons_triangulated += 1;
+            "vt" => {
+                let v = nums(toks, 1, "texture coordinate")?;
+                texcoords.push(Vector2::new(v[0] as f32, v.get(1).copied().unwrap_or(0.0) as f32));
             }
-            let idx = &m.indices[corners.clone()];
-            if has_n {
-                for (k, &vi) in idx.iter().enumerate() {
-                    let ni = m.normal_indices[corners.start + k] as usize;
-                    if let Some(n) = m.normals.get(3 * ni..3 * ni + 3) {
-                        normal_sum[(v0 + vi) as usize] += Vector3::new(n[0], n[1], n[2]);
-                        any_normals = true;
+            "vn" => {
+                let v = nums(toks, 3, "normal")?;
+                normals.push(Vector3::new(v[0], v[1], v[2]));
+            }
+            "f" => {
+                let mut corners: Vec<(u32, Option<u32>)> = Vec::new();
+                for c in toks {
+                    let mut parts = c.split('/');
+                    let resolve = |s: Option<&str>, n: usize, what: &str| -> Result<Option<u32>> {
+                        let Some(s) = s.filter(|s| !s.is_empty()) else { return Ok(None) };
+                        let k: i64 = s.parse().map_err(|_| {
+                            Error::at_line(path, ln, format!("face corner '{c}' is malformed"))
+                        })?;
+                        let idx = if k > 0 { k - 1 } else { n as i64 + k };
+                        if k == 0 || idx < 0 || idx >= n as i64 {
+                            return Err(Error::at_line(
+                                path,
+                                ln,
+                                format!("face {what} index {k} is out of range ({n} defined so far)"),
+                            ));
+                        }
+                        Ok(Some(idx as u32))
+                    };
+                    let v = resolve(parts.next(), mesh.positions.len(), "vertex")?
+                        .ok_or_else(|| Error::at_line(path, ln, format!("face corner '{c}' has no vertex index")))?;
+                    let t = resolve(parts.next(), texcoords.len(), "texture coordinate")?;
+                    if let Some(n) = resolve(parts.next(), normals.len(), "normal")? {
+                        normal_sum[v as usize] += normals[n as usize];
+                        any_normal = true;
+                    }
+                    corners.push((v, t));
+                }
+                if corners.len() < 3 {
+                    report.degenerate_faces += 1;
+                    continue;
+                }
+                if corners.len() > 3 {
+                    report.polygons_triangulated += 1;
+                }
+                let with_uv = corners.iter().all(|c| c.1.is_some());
+                for k in 1..corners.len() - 1 {
+                    let tri = [corners[0], corners[k], corners[k + 1]];
+                    mesh.faces.push(tri.map(|c| VertexId(c.0)));
+                    if with_uv {
+                        uv_faces.push(tri.map(|c| c.1.unwrap_or(0)));
+                    } else {
+                        faces_without_uv += 1;
                     }
                 }
             }
-            for k in 1..a - 1 {
-                mesh.faces.push([
-                    VertexId(v0 + idx[0]),
-                    VertexId(v0 + idx[k]),
-                    VertexId(v0 + idx[k + 1]),
-                ]);
-                if has_uv {
-                    let t = &m.texcoord_indices[corners.clone()];
-                    uv.faces.push([t0 + t[0], t0 + t[k], t0 + t[k + 1]]);
+            "mtllib" => {
+                if mtllib.is_none() {
+                    mtllib = Some(line["mtllib".len()..].trim().to_string());
                 }
             }
+            _ => {}
         }
     }
-    if any_normals {
+    if any_normal {
         mesh.normals = Some(
             normal_sum
                 .iter()
                 .map(|n| {
                     let l = n.norm();
-                    if l > 0.0 {
-                        (n / l).cast::<f32>()
-                    } else {
-                        Vector3::zeros()
-                    }
+                    if l > 0.0 { (n / l).cast() } else { Vector3::zeros() }
                 })
                 .collect(),
         );
     }
-    if any_colors {
+    if !colors.is_empty() && colors.len() == mesh.positions.len() {
         mesh.colors = Some(colors);
     }
-    if all_have_uv && !uv.faces.is_empty() {
-        mesh.uv = Some(uv);
+    // UVs only when every face has them: a half-textured OBJ is treated as untextured.
+    if faces_without_uv == 0 && !uv_faces.is_empty() {
+        mesh.uv = Some(UvMap { coords: texcoords, faces: uv_faces });
     }
-    if let Ok(mats) = materials {
-        if let Some(tex) = mats.iter().find_map(|m| m.diffuse_texture.clone()) {
-            let dir = path.parent().unwrap_or(Path::new("."));
-            mesh.texture = Some(TextureSource::File(dir.join(tex.trim())));
-        }
+    if let Some(lib) = mtllib {
+        let dir = path.parent().unwrap_or(Path::new("."));
+        mesh.texture = diffuse_map(&dir.join(&lib)).map(|t| TextureSource::File(dir.join(t)));
     }
     Ok((mesh, report))
 }
 
-/// Turns a tobj error into ours, pointing at the first line that explains it.
-fn locate_error(path: &Path, e: tobj::LoadError) -> Error {
-    if matches!(
-        e,
-        tobj::LoadError::OpenFileFailed | tobj::LoadError::ReadError
-    ) {
-        let io = std::fs::File::open(path)
-            .err()
-            .unwrap_or_else(|| std::io::Error::other(e.to_string()));
-        return Error::io(path, io);
-    }
-    let Ok(text) = std::fs::read_to_string(path) else {
-        return Error::parse(path, crate::error::Location::File, e.to_string());
-    };
-    let (mut nv, mut nt, mut nn) = (0usize, 0usize, 0usize);
-    for (i, line) in text.lines().enumerate() {
-        let mut toks = line.split_whitespace();
-        let bad = |msg: String| Some(Error::at_line(path, i + 1, msg));
-        let found = match toks.next() {
-            Some(kind @ ("v" | "vt" | "vn")) => {
-                let vals: Vec<&str> = toks.collect();
-                let need = if kind == "vt" { 1 } else { 3 };
-                let counter = match kind {
-                    "v" => &mut nv,
-                    "vt" => &mut nt,
-                    _ => &mut nn,
-                };
-                *counter += 1;
-                if vals.len() < need || vals.iter().any(|v| v.parse::<f64>().is_err()) {
-                    bad(format!("'{}': {e}", line.trim()))
-                } else {
-                    None
-                }
-            }
-            Some("f") => toks.find_map(|corner| {
-                corner.split('/').zip([nv, nt, nn]).find_map(|(s, n)| {
-                    if s.is_empty() {
-                        return None;
-                    }
-                    match s.parse::<i64>() {
-                        Ok(k)
-                            if (k > 0 && k as usize <= n)
-                                || (k < 0 && k.unsigned_abs() as usize <= n) =>
-                        {
-                            None
-                        }
-                        Ok(k) => bad(format!(
-                            "face index {k} is out of range ({n} defined so far)"
-                        )),
-                        Err(_) => bad(format!("face corner '{corner}' is malformed")),
-                    }
-                })
-            }),
-            _ => None,
-        };
-        if let Some(err) = found {
-            return err;
-        }
-    }
-    Error::parse(path, crate::error::Location::File, e.to_string())
+/// The first `map_Kd` of an MTL file (its options such as `-s 1 1 1` skipped); `None` if the
+/// file is missing or has none: a mesh without its texture is still a mesh.
+fn diffuse_map(mtl: &Path) -> Option<String> {
+    let text = std::fs::read_to_string(mtl).ok()?;
+    text.lines().find_map(|l| {
+        let l = l.trim();
+        let rest = l.strip_prefix("map_Kd")?;
+        let toks: Vec<&str> = rest.split_whitespace().collect();
+        // The file name is what follows the options: take the last token.
+        toks.last().map(|s| s.to_string())
+    })
 }
 
 /// Writes `mesh` as OBJ; with a texture, also `<stem>.mtl` and `<stem>.<png|jpg>` beside it.
