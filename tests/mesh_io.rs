@@ -12,10 +12,23 @@ use std::path::Path;
 fn cube() -> Mesh {
     let p = |x, y, z| Point3::new(x, y, z);
     let positions = vec![
-        p(0.0, 0.0, 0.0), p(1.0, 0.0, 0.0), p(1.0, 1.0, 0.0), p(0.0, 1.0, 0.0),
-        p(0.0, 0.0, 1.0), p(1.0, 0.0, 1.0), p(1.0, 1.0, 1.0), p(0.0, 1.0, 1.0 + 1e-13),
+        p(0.0, 0.0, 0.0),
+        p(1.0, 0.0, 0.0),
+        p(1.0, 1.0, 0.0),
+        p(0.0, 1.0, 0.0),
+        p(0.0, 0.0, 1.0),
+        p(1.0, 0.0, 1.0),
+        p(1.0, 1.0, 1.0),
+        p(0.0, 1.0, 1.0 + 1e-13),
     ];
-    let quads = [[0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [2, 3, 7, 6], [1, 2, 6, 5], [0, 4, 7, 3]];
+    let quads = [
+        [0, 3, 2, 1],
+        [4, 5, 6, 7],
+        [0, 1, 5, 4],
+        [2, 3, 7, 6],
+        [1, 2, 6, 5],
+        [0, 4, 7, 3],
+    ];
     let mut faces = Vec::new();
     let mut uv_faces = Vec::new();
     let mut coords = Vec::new();
@@ -30,7 +43,15 @@ fn cube() -> Mesh {
         uv_faces.push([base, base + 1, base + 2]);
         uv_faces.push([base, base + 2, base + 3]);
     }
-    Mesh { positions, faces, uv: Some(UvMap { coords, faces: uv_faces }), ..Default::default() }
+    Mesh {
+        positions,
+        faces,
+        uv: Some(UvMap {
+            coords,
+            faces: uv_faces,
+        }),
+        ..Default::default()
+    }
 }
 
 fn png_texture() -> EncodedTexture {
@@ -58,9 +79,15 @@ fn obj_round_trip_keeps_positions_faces_uvs_and_texture() {
     for f in 0..m.faces.len() {
         assert_eq!(corner_uvs(&r, f), corner_uvs(&m, f));
     }
-    assert_eq!(r.texture, Some(TextureSource::File(dir.path().join("cube.png"))));
+    assert_eq!(
+        r.texture,
+        Some(TextureSource::File(dir.path().join("cube.png")))
+    );
     // No temporary files left behind.
-    let names: Vec<String> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    let names: Vec<String> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
     assert!(names.iter().all(|n| !n.contains(".tmp")), "{names:?}");
 }
 
@@ -81,7 +108,10 @@ fn ply_round_trip_keeps_positions_faces_uvs_normals_colours() {
     let (rn, mn) = (r.normals.unwrap(), m.normals.unwrap());
     assert!(rn.iter().zip(&mn).all(|(a, b)| (a - b).norm() < 1e-6));
     let rc = r.colors.unwrap();
-    assert!(rc.iter().zip(m.colors.unwrap()).all(|(a, b)| (0..3).all(|k| (a[k] - b[k]).abs() <= 0.51 / 255.0)));
+    assert!(rc
+        .iter()
+        .zip(m.colors.unwrap())
+        .all(|(a, b)| (0..3).all(|k| (a[k] - b[k]).abs() <= 0.51 / 255.0)));
 }
 
 #[test]
@@ -99,7 +129,11 @@ fn ply_ascii_with_quads_uchar_colours_texcoords_and_extra_elements() {
 /// Encodes a small mesh as binary PLY in either byte order with the given scalar types.
 fn binary_ply(big_endian: bool, pos_double: bool, count_ty: &str, index_ty: &str) -> Vec<u8> {
     let pt = if pos_double { "double" } else { "float" };
-    let fmt = if big_endian { "binary_big_endian" } else { "binary_little_endian" };
+    let fmt = if big_endian {
+        "binary_big_endian"
+    } else {
+        "binary_little_endian"
+    };
     let mut b = format!("ply\nformat {fmt} 1.0\nelement vertex 4\nproperty {pt} x\nproperty {pt} y\nproperty {pt} z\nproperty float nx\nproperty float ny\nproperty float nz\nelement face 1\nproperty list {count_ty} {index_ty} vertex_indices\nend_header\n").into_bytes();
     let put = |b: &mut Vec<u8>, le: Vec<u8>| {
         let mut v = le;
@@ -110,7 +144,14 @@ fn binary_ply(big_endian: bool, pos_double: bool, count_ty: &str, index_ty: &str
     };
     for (x, y) in [(0.0, 0.0), (2.0, 0.0), (2.0, 3.0), (0.0, 3.0)] {
         for c in [x, y, 0.25f64] {
-            put(&mut b, if pos_double { c.to_le_bytes().to_vec() } else { (c as f32).to_le_bytes().to_vec() });
+            put(
+                &mut b,
+                if pos_double {
+                    c.to_le_bytes().to_vec()
+                } else {
+                    (c as f32).to_le_bytes().to_vec()
+                },
+            );
         }
         for c in [0.0f32, 0.0, 1.0] {
             put(&mut b, c.to_le_bytes().to_vec());
@@ -134,10 +175,22 @@ fn binary_ply(big_endian: bool, pos_double: bool, count_ty: &str, index_ty: &str
 fn ply_binary_both_endians_all_index_types() {
     for be in [false, true] {
         for dbl in [false, true] {
-            for (ct, it) in [("uchar", "int"), ("uchar", "uint"), ("ushort", "ushort"), ("int", "int"), ("char", "uchar"), ("uint", "short")] {
+            for (ct, it) in [
+                ("uchar", "int"),
+                ("uchar", "uint"),
+                ("ushort", "ushort"),
+                ("int", "int"),
+                ("char", "uchar"),
+                ("uint", "short"),
+            ] {
                 let data = binary_ply(be, dbl, ct, it);
-                let (m, rep) = io::ply::parse(Path::new("t.ply"), &data).unwrap_or_else(|e| panic!("{be} {dbl} {ct} {it}: {e}"));
-                assert_eq!(m.positions[2], Point3::new(2.0, 3.0, 0.25), "{be} {dbl} {ct} {it}");
+                let (m, rep) = io::ply::parse(Path::new("t.ply"), &data)
+                    .unwrap_or_else(|e| panic!("{be} {dbl} {ct} {it}: {e}"));
+                assert_eq!(
+                    m.positions[2],
+                    Point3::new(2.0, 3.0, 0.25),
+                    "{be} {dbl} {ct} {it}"
+                );
                 assert_eq!(m.faces.len(), 2);
                 assert_eq!(rep.polygons_triangulated, 1);
                 assert_eq!(m.normals.as_ref().unwrap()[3].z, 1.0);
@@ -192,7 +245,11 @@ fn gltf_node_transforms_are_applied() {
     let path = dir.path().join("tri.gltf");
     std::fs::write(&path, serde_json::to_string(&gltf).unwrap()).unwrap();
     let (m, _) = io::read_mesh(&path).unwrap();
-    let want = [Point3::new(10.0, 0.0, 0.0), Point3::new(10.0, 2.0, 0.0), Point3::new(8.0, 0.0, 0.0)];
+    let want = [
+        Point3::new(10.0, 0.0, 0.0),
+        Point3::new(10.0, 2.0, 0.0),
+        Point3::new(8.0, 0.0, 0.0),
+    ];
     for (p, w) in m.positions.iter().zip(want) {
         assert!((p - w).norm() < 1e-6, "{p} vs {w}");
     }
@@ -200,7 +257,9 @@ fn gltf_node_transforms_are_applied() {
 
 #[test]
 fn corset_gltf_and_obj_describe_the_same_scan() {
-    let Some(dir) = common::shared_data("scans/corset") else { return };
+    let Some(dir) = common::shared_data("scans/corset") else {
+        return;
+    };
     let (g, _) = io::read_mesh(&dir.join("Corset.gltf")).unwrap();
     let (o, _) = io::read_mesh(&dir.join("Corset.obj")).unwrap();
     assert_eq!((g.num_vertices(), g.num_faces()), (11505, 18324));
@@ -208,16 +267,33 @@ fn corset_gltf_and_obj_describe_the_same_scan() {
     // The glTF node rotates 180 deg about y; the OBJ was exported with it applied, so reading
     // the glTF with its node transform must give the OBJ's positions.
     for f in (0..g.num_faces()).step_by(97) {
-        let (tg, to) = (g.triangle(scantex::mesh::FaceId(f as u32)), o.triangle(scantex::mesh::FaceId(f as u32)));
+        let (tg, to) = (
+            g.triangle(scantex::mesh::FaceId(f as u32)),
+            o.triangle(scantex::mesh::FaceId(f as u32)),
+        );
         for k in 0..3 {
-            assert!((tg[k] - to[k]).norm() < 1e-6, "face {f}: {} vs {}", tg[k], to[k]);
+            assert!(
+                (tg[k] - to[k]).norm() < 1e-6,
+                "face {f}: {} vs {}",
+                tg[k],
+                to[k]
+            );
             // v is flipped in the OBJ; both read into the same (OBJ) convention.
-            assert!((corner_uvs(&g, f)[k] - corner_uvs(&o, f)[k]).norm() < 1e-5, "face {f} uv");
+            assert!(
+                (corner_uvs(&g, f)[k] - corner_uvs(&o, f)[k]).norm() < 1e-5,
+                "face {f} uv"
+            );
         }
     }
     // The colour texture: base colour is named but not shipped, the spec-gloss diffuse is.
-    assert_eq!(g.texture, Some(TextureSource::File(dir.join("Corset_diffuse.png"))));
-    assert_eq!(o.texture, Some(TextureSource::File(dir.join("Corset_diffuse.png"))));
+    assert_eq!(
+        g.texture,
+        Some(TextureSource::File(dir.join("Corset_diffuse.png")))
+    );
+    assert_eq!(
+        o.texture,
+        Some(TextureSource::File(dir.join("Corset_diffuse.png")))
+    );
 }
 
 /// Runs the Khronos glTF validator (npm `gltf-validator`) on `glb`; installs it under
@@ -245,7 +321,11 @@ fn khronos_validate(glb: &Path) -> Option<serde_json::Value> {
         .env("NODE_PATH", prefix.join("node_modules"))
         .output()
         .expect("node runs");
-    assert!(out.status.success(), "validator failed: {}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "validator failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     Some(serde_json::from_slice(&out.stdout).unwrap())
 }
 
@@ -258,13 +338,18 @@ fn glb_passes_the_khronos_validator() {
     meshes.push(("untextured", untextured, None));
     if let Some(d) = common::shared_data("scans/corset") {
         let (m, _) = io::read_mesh(&d.join("Corset.obj")).unwrap();
-        let tex = EncodedTexture { bytes: std::fs::read(d.join("Corset_diffuse.png")).unwrap(), mime: "image/png" };
+        let tex = EncodedTexture {
+            bytes: std::fs::read(d.join("Corset_diffuse.png")).unwrap(),
+            mime: "image/png",
+        };
         meshes.push(("corset", m, Some(tex)));
     }
     for (name, m, tex) in meshes {
         let path = dir.path().join(format!("{name}.glb"));
         io::write_mesh(&path, &m, tex.as_ref()).unwrap();
-        let Some(report) = khronos_validate(&path) else { return };
+        let Some(report) = khronos_validate(&path) else {
+            return;
+        };
         assert_eq!(report["errors"], 0, "{name}: {report}");
         assert_eq!(report["warnings"], 0, "{name}: {report}");
     }

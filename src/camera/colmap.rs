@@ -505,7 +505,9 @@ impl<'a> Cursor<'a> {
         if n.checked_mul(min_size as u64).is_none_or(|b| b > left) {
             return Err(self.err_at(
                 at,
-                format!("{what} = {n} does not fit in the {left} bytes left: corrupt file"),
+                format!(
+                    "{what} = {n} does not fit in the {left} bytes left: truncated or corrupt file"
+                ),
             ));
         }
         Ok(n as usize)

@@ -226,7 +226,9 @@ impl Builder {
             if self.textures.is_empty() {
                 let mat = prim.material();
                 let base = mat.pbr_metallic_roughness().base_color_texture();
-                let diffuse = mat.pbr_specular_glossiness().and_then(|s| s.diffuse_texture());
+                let diffuse = mat
+                    .pbr_specular_glossiness()
+                    .and_then(|s| s.diffuse_texture());
                 self.textures = base
                     .into_iter()
                     .chain(diffuse)

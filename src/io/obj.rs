@@ -41,12 +41,26 @@ pub fn parse(path: &Path, bytes: &[u8]) -> Result<(Mesh, LoadReport)> {
             let v: Vec<f64> = toks
                 .map(|t| t.parse::<f64>())
                 .collect::<std::result::Result<_, _>>()
-                .map_err(|_| Error::at_line(path, ln, format!("{what}: '{line}' has a value that is not a number")))?;
+                .map_err(|_| {
+                    Error::at_line(
+                        path,
+                        ln,
+                        format!("{what}: '{line}' has a value that is not a number"),
+                    )
+                })?;
             if v.len() < min {
-                return Err(Error::at_line(path, ln, format!("{what}: expected at least {min} values, found {}", v.len())));
+                return Err(Error::at_line(
+                    path,
+                    ln,
+                    format!("{what}: expected at least {min} values, found {}", v.len()),
+                ));
             }
             if let Some(k) = v.iter().position(|x| !x.is_finite()) {
-                return Err(Error::at_line(path, ln, format!("{what}: value {} is not finite", k + 1)));
+                return Err(Error::at_line(
+                    path,
+                    ln,
+                    format!("{what}: value {} is not finite", k + 1),
+                ));
             }
             Ok(v)
         };
@@ -61,7 +75,10 @@ pub fn parse(path: &Path, bytes: &[u8]) -> Result<(Mesh, LoadReport)> {
             }
             "vt" => {
                 let v = nums(toks, 1, "texture coordinate")?;
-                texcoords.push(Vector2::new(v[0] as f32, v.get(1).copied().unwrap_or(0.0) as f32));
+                texcoords.push(Vector2::new(
+                    v[0] as f32,
+                    v.get(1).copied().unwrap_or(0.0) as f32,
+                ));
             }
             "vn" => {
                 let v = nums(toks, 3, "normal")?;
@@ -72,7 +89,9 @@ pub fn parse(path: &Path, bytes: &[u8]) -> Result<(Mesh, LoadReport)> {
                 for c in toks {
                     let mut parts = c.split('/');
                     let resolve = |s: Option<&str>, n: usize, what: &str| -> Result<Option<u32>> {
-                        let Some(s) = s.filter(|s| !s.is_empty()) else { return Ok(None) };
+                        let Some(s) = s.filter(|s| !s.is_empty()) else {
+                            return Ok(None);
+                        };
                         let k: i64 = s.parse().map_err(|_| {
                             Error::at_line(path, ln, format!("face corner '{c}' is malformed"))
                         })?;
@@ -81,13 +100,22 @@ pub fn parse(path: &Path, bytes: &[u8]) -> Result<(Mesh, LoadReport)> {
                             return Err(Error::at_line(
                                 path,
                                 ln,
-                                format!("face {what} index {k} is out of range ({n} defined so far)"),
+                                format!(
+                                    "face {what} index {k} is out of range ({n} defined so far)"
+                                ),
                             ));
                         }
                         Ok(Some(idx as u32))
                     };
-                    let v = resolve(parts.next(), mesh.positions.len(), "vertex")?
-                        .ok_or_else(|| Error::at_line(path, ln, format!("face corner '{c}' has no vertex index")))?;
+                    let v = resolve(parts.next(), mesh.positions.len(), "vertex")?.ok_or_else(
+                        || {
+                            Error::at_line(
+                                path,
+                                ln,
+                                format!("face corner '{c}' has no vertex index"),
+                            )
+                        },
+                    )?;
                     let t = resolve(parts.next(), texcoords.len(), "texture coordinate")?;
                     if let Some(n) = resolve(parts.next(), normals.len(), "normal")? {
                         normal_sum[v as usize] += normals[n as usize];
@@ -127,7 +155,11 @@ pub fn parse(path: &Path, bytes: &[u8]) -> Result<(Mesh, LoadReport)> {
                 .iter()
                 .map(|n| {
                     let l = n.norm();
-                    if l > 0.0 { (n / l).cast() } else { Vector3::zeros() }
+                    if l > 0.0 {
+                        (n / l).cast()
+                    } else {
+                        Vector3::zeros()
+                    }
                 })
                 .collect(),
         );
@@ -137,7 +169,10 @@ pub fn parse(path: &Path, bytes: &[u8]) -> Result<(Mesh, LoadReport)> {
     }
     // UVs only when every face has them: a half-textured OBJ is treated as untextured.
     if faces_without_uv == 0 && !uv_faces.is_empty() {
-        mesh.uv = Some(UvMap { coords: texcoords, faces: uv_faces });
+        mesh.uv = Some(UvMap {
+            coords: texcoords,
+            faces: uv_faces,
+        });
     }
     if let Some(lib) = mtllib {
         let dir = path.parent().unwrap_or(Path::new("."));
