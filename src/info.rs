@@ -270,6 +270,12 @@ impl fmt::Display for InfoReport {
                     "  points matching COLMAP's stored error to 1e-3 px: {:.2}%",
                     100.0 * a
                 )?;
+                if a < 0.99 {
+                    writeln!(
+                        f,
+                        "    (expected below 100% for models from COLMAP's image_undistorter, which keeps\n     the errors of the distorted model, and for text models, which round poses to 6 digits)"
+                    )?;
+                }
             }
         }
         Ok(())

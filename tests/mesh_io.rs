@@ -354,3 +354,14 @@ fn glb_passes_the_khronos_validator() {
         assert_eq!(report["warnings"], 0, "{name}: {report}");
     }
 }
+
+/// Found by fuzzing: an element with no properties and a huge count spun for ever.
+#[test]
+fn fuzz_ply_zero_property_element_with_huge_count() {
+    let data = b"ply\nformat binary_little_endian 1.0\nelement junk 1000000000000000000\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
+    let started = std::time::Instant::now();
+    let r = io::ply::parse(Path::new("hang.ply"), data);
+    assert!(r.is_ok_and(|(m, _)| m.positions.is_empty()));
+    // Not a timing target: a regression back to the loop would take years, not seconds.
+    assert!(started.elapsed().as_secs() < 60);
+}

@@ -141,10 +141,8 @@ pub fn parse(path: &Path, bytes: &[u8]) -> Result<(Mesh, LoadReport)> {
                     }
                 }
             }
-            "mtllib" => {
-                if mtllib.is_none() {
-                    mtllib = Some(line["mtllib".len()..].trim().to_string());
-                }
+            "mtllib" if mtllib.is_none() => {
+                mtllib = Some(line["mtllib".len()..].trim().to_string());
             }
             _ => {}
         }

@@ -132,6 +132,8 @@ pub fn parse(path: &Path, data: &[u8]) -> Result<(Mesh, LoadReport)> {
                 &mut uv_faces,
                 &mut corner_uv,
             )?,
+            // An element without properties has no data (and a huge count must not spin).
+            _ if el.props.is_empty() => {}
             _ => {
                 for _ in 0..el.count {
                     src.begin_record()?;
