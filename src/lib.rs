@@ -15,17 +15,22 @@
 //! | 4. merge *(planned)* | `merge::merge(&Layers, &Masks, &MergeOptions)` | -> `Texture` + unseen mask |
 //! | 5. restore *(planned)* | `restore::inpaint(&Texture, &Mask, &RestoreOptions)` | -> `Texture` (every texel filled) |
 //! | 6. synthesize *(planned)* | `synth::fill_surface(&Mesh, &Atlas, &Texture, ..)` | -> `Texture` (large unseen regions) |
+//! | eval | [`eval::evaluate`] | textured [`mesh::Mesh`] + held-out [`scene::Photo`]s -> [`eval::EvalReport`] (PSNR, SSIM, 1-NCC, completeness) |
 //! | out | [`io::write_mesh`] | [`mesh::Mesh`] + [`io::EncodedTexture`] -> OBJ/MTL/PNG, PLY, GLB |
 //!
 //! Conventions: COLMAP's camera conventions throughout ([`camera`]); texture coordinates with
 //! origin at the lower-left ([`mesh::UvMap`]); every error is an [`Error`] naming the file and
 //! the line, byte or element at fault.
 
+pub mod bvh;
 pub mod camera;
 pub mod error;
+pub mod eval;
 pub mod info;
 pub mod io;
 pub mod mesh;
+pub mod render;
+pub mod sample;
 pub mod scene;
 
 pub use error::{Error, Location, Result};
