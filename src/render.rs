@@ -284,19 +284,24 @@ pub fn render(
         tw.max(th) as f64
     });
     let ray = |x: f64, y: f64| view.world_ray(&nalgebra::Point2::new(x, y));
-    let rows: Vec<(Vec<[f32; 3]>, Vec<u8>, Vec<f32>)> = (0..h)
-        .into_par_iter()
-        .map(|y| {
-            let mut col = vec![opts.background; w as usize];
-            let mut cov = vec![0u8; w as usize];
-            let mut alpha = vec![0f32; w as usize];
-            for x in 0..w {
+    let (wu, hu) = (w as usize, h as usize);
+    let mut color = vec![0f32; wu * hu * 3];
+    let mut coverage = vec![0u8; wu * hu];
+    let mut alpha = vec![0f32; wu * hu];
+    color
+        .par_chunks_mut(wu * 3)
+        .zip(coverage.par_chunks_mut(wu))
+        .zip(alpha.par_chunks_mut(wu))
+        .enumerate()
+        .for_each(|(y, ((col, cov), alpha))| {
+            for x in 0..wu {
+                col[3 * x..3 * x + 3].copy_from_slice(&opts.background);
                 let (px, py) = (x as f64 + 0.5, y as f64 + 0.5);
                 let Some(d) = ray(px, py) else { continue };
                 let Some(hit) = mesh.intersect(&origin, &d) else {
                     continue;
                 };
-                let i = x as usize;
+                let i = x;
                 cov[i] = 255;
                 let (albedo, a) = match (texture, mesh.uv(hit.face, hit.bary)) {
                     (Some(t), Some(uv)) => {
@@ -335,26 +340,16 @@ pub fn render(
                     }
                 };
                 let g = opts.lighting.exposure * shade;
-                col[i] = std::array::from_fn(|k| albedo[k] * g * opts.lighting.white_balance[k]);
+                for k in 0..3 {
+                    col[3 * i + k] = albedo[k] * g * opts.lighting.white_balance[k];
+                }
                 alpha[i] = a;
             }
-            (col, cov, alpha)
-        })
-        .collect();
-    let mut color = Rgb32FImage::new(w, h);
-    let mut coverage = GrayImage::new(w, h);
-    let mut texture_alpha = image::ImageBuffer::new(w, h);
-    for (y, (c, v, a)) in rows.into_iter().enumerate() {
-        for x in 0..w as usize {
-            color.put_pixel(x as u32, y as u32, image::Rgb(c[x]));
-            coverage.put_pixel(x as u32, y as u32, image::Luma([v[x]]));
-            texture_alpha.put_pixel(x as u32, y as u32, image::Luma([a[x]]));
-        }
-    }
+        });
     Rendered {
-        color,
-        coverage,
-        texture_alpha,
+        color: Rgb32FImage::from_raw(w, h, color).expect("buffer sized w*h*3"),
+        coverage: GrayImage::from_raw(w, h, coverage).expect("buffer sized w*h"),
+        texture_alpha: image::ImageBuffer::from_raw(w, h, alpha).expect("buffer sized w*h"),
     }
 }
 

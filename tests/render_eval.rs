@@ -331,3 +331,74 @@ fn coverage_mask_marks_exactly_the_object() {
         .count();
     assert_eq!(differ, 0);
 }
+
+#[test]
+fn cli_render_and_eval_write_what_they_promise() {
+    let s = sample();
+    let out = tempfile::tempdir().unwrap();
+    let run = |args: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_scantex"))
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let o = run(&[
+        "render",
+        "--mesh",
+        s.join("truth/model.glb").to_str().unwrap(),
+        s.join("heldout").to_str().unwrap(),
+        "-o",
+        out.path().to_str().unwrap(),
+        "--lambert",
+        "--light",
+        "0,0,1",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for i in 1..=4 {
+        let name = format!("heldout_{i:02}.png");
+        let img = image::open(out.path().join(&name)).unwrap();
+        assert_eq!((img.width(), img.height()), (800, 600));
+        assert!(out.path().join("masks").join(&name).is_file());
+    }
+    let json = out.path().join("eval.json");
+    let o = run(&[
+        "eval",
+        "--mesh",
+        s.join("truth/model.glb").to_str().unwrap(),
+        s.join("heldout").to_str().unwrap(),
+        "--gain-fit",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let table = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(table.lines().count(), 6, "{table}");
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(r["images"].as_array().unwrap().len(), 4);
+    assert!(r["mean"]["psnr"].as_f64().unwrap() > 40.0);
+    // A bad argument is an error, not a panic, and writes nothing.
+    let empty = tempfile::tempdir().unwrap();
+    let o = run(&[
+        "render",
+        "--mesh",
+        "nope.glb",
+        s.to_str().unwrap(),
+        "-o",
+        empty.path().join("x").to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("nope.glb"));
+    assert!(!empty.path().join("x").exists());
+    let o = run(&[
+        "render",
+        "--mesh",
+        "a.glb",
+        s.to_str().unwrap(),
+        "-o",
+        "x",
+        "--light",
+        "1,2",
+    ]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("three numbers"));
+}
