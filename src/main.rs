@@ -35,7 +35,7 @@ enum Command {
         #[arg(long = "mesh", value_name = "MESH")]
         textured: PathBuf,
         #[command(flatten)]
-        scene: SceneArgs,
+        scene: ViewArgs,
         /// Output directory.
         #[arg(short, long)]
         out: PathBuf,
@@ -65,7 +65,7 @@ enum Command {
         #[arg(long = "mesh", value_name = "MESH")]
         textured: PathBuf,
         #[command(flatten)]
-        scene: SceneArgs,
+        scene: ViewArgs,
         /// Fit one gain per channel per image before PSNR and SSIM.
         #[arg(long)]
         gain_fit: bool,
@@ -126,6 +126,34 @@ struct SceneArgs {
     /// Object masks directory (white = object); overrides the scene directory's masks/.
     #[arg(long)]
     masks: Option<PathBuf>,
+}
+
+/// The cameras and photographs of a scene, for commands whose --mesh is the mesh under test.
+#[derive(Args)]
+struct ViewArgs {
+    /// Scene directory holding sparse/ (or sparse/0/), images/ and optionally masks/.
+    scene: Option<PathBuf>,
+    /// COLMAP model directory (text or binary); overrides the scene directory's.
+    #[arg(long)]
+    colmap: Option<PathBuf>,
+    /// Photographs directory; overrides the scene directory's images/.
+    #[arg(long)]
+    images: Option<PathBuf>,
+    /// Object masks directory (white = object); overrides the scene directory's masks/.
+    #[arg(long)]
+    masks: Option<PathBuf>,
+}
+
+impl ViewArgs {
+    fn spec(self) -> SceneSpec {
+        SceneSpec {
+            dir: self.scene,
+            mesh: None,
+            colmap: self.colmap,
+            images: self.images,
+            masks: self.masks,
+        }
+    }
 }
 
 impl SceneArgs {
@@ -259,5 +287,15 @@ fn main() -> ExitCode {
             eprintln!("scantex: error: {e}");
             ExitCode::FAILURE
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    /// clap's own consistency checks (duplicate flags and the like) on every subcommand.
+    #[test]
+    fn cli_definition_is_consistent() {
+        use clap::CommandFactory;
+        super::Cli::command().debug_assert();
     }
 }
