@@ -112,26 +112,27 @@ fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
 /// How every command is pointed at a scene: a directory, explicit paths, or both.
 #[derive(Args)]
 struct SceneArgs {
-    /// Scene directory holding a mesh file, sparse/ (or sparse/0/), images/ and optionally masks/.
-    scene: Option<PathBuf>,
+    #[command(flatten)]
+    views: ViewArgs,
     /// Mesh file (.obj, .ply, .gltf, .glb); overrides the scene directory's.
     #[arg(long)]
     mesh: Option<PathBuf>,
-    /// COLMAP model directory (text or binary); overrides the scene directory's.
-    #[arg(long)]
-    colmap: Option<PathBuf>,
-    /// Photographs directory; overrides the scene directory's images/.
-    #[arg(long)]
-    images: Option<PathBuf>,
-    /// Object masks directory (white = object); overrides the scene directory's masks/.
-    #[arg(long)]
-    masks: Option<PathBuf>,
 }
 
-/// The cameras and photographs of a scene, for commands whose --mesh is the mesh under test.
+impl SceneArgs {
+    fn spec(self) -> SceneSpec {
+        SceneSpec {
+            mesh: self.mesh,
+            ..self.views.spec()
+        }
+    }
+}
+
+/// The cameras and photographs of a scene (for render and eval, whose --mesh is the mesh under
+/// test rather than the scene's).
 #[derive(Args)]
 struct ViewArgs {
-    /// Scene directory holding sparse/ (or sparse/0/), images/ and optionally masks/.
+    /// Scene directory holding a mesh file, sparse/ (or sparse/0/), images/ and optionally masks/.
     scene: Option<PathBuf>,
     /// COLMAP model directory (text or binary); overrides the scene directory's.
     #[arg(long)]
@@ -149,18 +150,6 @@ impl ViewArgs {
         SceneSpec {
             dir: self.scene,
             mesh: None,
-            colmap: self.colmap,
-            images: self.images,
-            masks: self.masks,
-        }
-    }
-}
-
-impl SceneArgs {
-    fn spec(self) -> SceneSpec {
-        SceneSpec {
-            dir: self.scene,
-            mesh: self.mesh,
             colmap: self.colmap,
             images: self.images,
             masks: self.masks,

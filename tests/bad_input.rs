@@ -125,6 +125,14 @@ fn setup() -> tempfile::TempDir {
     d
 }
 
+/// The valid scene with its OBJ replaced by a PLY of the given content.
+fn with_ply(content: &[u8]) -> tempfile::TempDir {
+    let d = setup();
+    std::fs::remove_file(d.path().join("mesh.obj")).unwrap();
+    std::fs::write(d.path().join("mesh.ply"), content).unwrap();
+    d
+}
+
 #[test]
 fn the_valid_scene_passes() {
     let d = setup();
@@ -281,9 +289,7 @@ fn face_index_out_of_range() {
         "{err}"
     );
     // PLY: the face element is named.
-    let d = setup();
-    std::fs::remove_file(d.path().join("mesh.obj")).unwrap();
-    std::fs::write(d.path().join("mesh.ply"), "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 5\n").unwrap();
+    let d = with_ply(b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 5\n");
     let err = fails(d.path(), &["."]);
     assert!(
         err.contains("mesh.ply (face 0)") && err.contains("out of range"),
@@ -304,9 +310,7 @@ fn empty_mesh() {
 
 #[test]
 fn unsupported_ply_property_type() {
-    let d = setup();
-    std::fs::remove_file(d.path().join("mesh.obj")).unwrap();
-    std::fs::write(d.path().join("mesh.ply"), "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty int64 z\nend_header\n").unwrap();
+    let d = with_ply(b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty int64 z\nend_header\n");
     let err = fails(d.path(), &["."]);
     assert!(
         err.contains("mesh.ply:6") && err.contains("unsupported PLY property type 'int64'"),
@@ -316,9 +320,7 @@ fn unsupported_ply_property_type() {
 
 #[test]
 fn truncated_ply() {
-    let d = setup();
-    std::fs::remove_file(d.path().join("mesh.obj")).unwrap();
-    std::fs::write(d.path().join("mesh.ply"), "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n\0\0\0\0").unwrap();
+    let d = with_ply(b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n\0\0\0\0");
     let err = fails(d.path(), &["."]);
     assert!(
         err.contains("mesh.ply (byte") && err.contains("truncated"),
