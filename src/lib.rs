@@ -22,6 +22,7 @@
 //! origin at the lower-left ([`mesh::UvMap`]); every error is an [`Error`] naming the file and
 //! the line, byte or element at fault.
 
+pub mod atlas;
 pub mod bvh;
 pub mod camera;
 pub mod error;

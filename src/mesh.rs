@@ -232,6 +232,39 @@ impl Mesh {
         n
     }
 
+    /// Merges vertices with bit-identical positions (a mesh exported with vertices split along
+    /// its old UV seams becomes one surface again). Per-corner UVs are kept; per-vertex normals
+    /// and colours are taken from the first of each merged group. Returns the number merged.
+    pub fn weld(&mut self) -> usize {
+        let mut first: HashMap<[u64; 3], u32> = HashMap::with_capacity(self.positions.len());
+        let mut remap = Vec::with_capacity(self.positions.len());
+        let mut kept = Vec::new();
+        for (i, p) in self.positions.iter().enumerate() {
+            let key = [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
+            let next = kept.len() as u32;
+            let id = *first.entry(key).or_insert_with(|| {
+                kept.push(i);
+                next
+            });
+            remap.push(id);
+        }
+        let merged = self.positions.len() - kept.len();
+        if merged == 0 {
+            return 0;
+        }
+        self.positions = kept.iter().map(|&i| self.positions[i]).collect();
+        if let Some(n) = &mut self.normals {
+            *n = kept.iter().map(|&i| n[i]).collect();
+        }
+        if let Some(c) = &mut self.colors {
+            *c = kept.iter().map(|&i| c[i]).collect();
+        }
+        for f in &mut self.faces {
+            *f = f.map(|v| VertexId(remap[v.idx()]));
+        }
+        merged
+    }
+
     /// Topology statistics: components, boundary loops, non-manifold edges.
     pub fn topology(&self) -> Topology {
         let mut edges: HashMap<(u32, u32), u32> = HashMap::with_capacity(self.faces.len() * 2);
@@ -370,6 +403,18 @@ mod tests {
             ],
             ..Default::default()
         }
+    }
+
+    #[test]
+    fn weld_merges_seam_duplicates() {
+        let mut m = tetra();
+        // Split vertex 0 for the last face, as a UV-seam export would.
+        m.positions.push(m.positions[0]);
+        m.faces[3][0] = v(4);
+        assert_eq!(m.topology().boundary_loops, 1);
+        assert_eq!(m.weld(), 1);
+        assert_eq!(m.num_vertices(), 4);
+        assert_eq!(m.topology().euler_characteristic, 2);
     }
 
     #[test]

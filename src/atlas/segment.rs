@@ -1,0 +1,551 @@
+//! Chart segmentation: cuts any triangle mesh into charts that are topological disks, each
+//! bounded in normal deviation so it flattens with low stretch (issue 4, step 1).
+//!
+//! Charts grow greedily from seeds across manifold, consistently oriented edges while the face
+//! normal stays within `max_angle` of the chart's mean normal; the cheapest candidate (normal
+//! deviation plus added boundary length) is taken first. A chart that is not a disk (Euler
+//! characteristic other than 1, several boundary loops, or a pinched boundary vertex) is split
+//! in two from its two mutually farthest faces, recursively; a single triangle is always a
+//! disk, so this terminates. Non-manifold and inconsistently oriented edges are never crossed,
+//! so they become chart borders and never cause a failure.
+
+use crate::mesh::{FaceId, Mesh};
+use nalgebra::Vector3;
+use std::cmp::Reverse;
+use std::collections::{BinaryHeap, HashMap, VecDeque};
+
+/// Options for [`segment`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SegmentOptions {
+    /// Largest angle, in degrees, between a face normal and its chart's mean normal.
+    /// Default: 65.
+    pub max_angle: f64,
+    /// Weight of the boundary-length term against the normal term when choosing the next face
+    /// (higher gives rounder charts and shorter seams). Default: 0.5.
+    pub compactness: f64,
+    /// Charts with fewer faces are merged into the neighbour they share most edges with when
+    /// the union is still a disk, whatever its normal deviation: slivers of noisy scans
+    /// otherwise become hundreds of tiny charts, each a seam. Default: 24.
+    pub min_faces: usize,
+    /// Rounds of averaging face normals with their neighbours before the normal test.
+    /// Default: 3.
+    pub smoothing: usize,
+}
+
+impl Default for SegmentOptions {
+    fn default() -> Self {
+        SegmentOptions {
+            max_angle: 65.0,
+            compactness: 0.5,
+            min_faces: 24,
+            smoothing: 3,
+        }
+    }
+}
+
+/// The charts of a mesh.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Charts {
+    /// For each face, its chart.
+    pub face_chart: Vec<u32>,
+    /// For each chart, its faces in growth order.
+    pub charts: Vec<Vec<FaceId>>,
+}
+
+/// Face adjacency across manifold, consistently oriented edges.
+pub struct Adjacency {
+    /// `neighbours[f][k]`: the face across edge k (corners k, k+1) of face f, if crossable.
+    pub neighbours: Vec<[Option<u32>; 3]>,
+}
+
+impl Adjacency {
+    /// Builds the adjacency of `mesh`.
+    pub fn new(mesh: &Mesh) -> Self {
+        let mut directed: HashMap<(u32, u32), Vec<(u32, u8)>> =
+            HashMap::with_capacity(mesh.num_faces() * 3);
+        for (f, face) in mesh.faces.iter().enumerate() {
+            for k in 0..3 {
+                directed
+                    .entry((face[k].0, face[(k + 1) % 3].0))
+                    .or_default()
+                    .push((f as u32, k as u8));
+            }
+        }
+        let mut neighbours = vec![[None; 3]; mesh.num_faces()];
+        for (f, face) in mesh.faces.iter().enumerate() {
+            for k in 0..3 {
+                let (a, b) = (face[k].0, face[(k + 1) % 3].0);
+                let same = directed.get(&(a, b)).map_or(0, Vec::len);
+                let opposite = directed.get(&(b, a));
+                // Manifold and consistently oriented: exactly this half-edge and one twin.
+                if same == 1 {
+                    if let Some(o) = opposite.filter(|o| o.len() == 1) {
+                        neighbours[f][k] = Some(o[0].0);
+                    }
+                }
+            }
+        }
+        Adjacency { neighbours }
+    }
+}
+
+/// Cuts `mesh` into disk-shaped charts.
+pub fn segment(mesh: &Mesh, opts: &SegmentOptions) -> Charts {
+    let adj = Adjacency::new(mesh);
+    let normals: Vec<Vector3<f64>> = (0..mesh.num_faces())
+        .map(|f| mesh.face_normal_area(FaceId(f as u32)))
+        .collect();
+    // Scans are noisy: test the normal cone on face normals smoothed over a few rings of
+    // neighbours (area weighted), so single noisy triangles do not start charts of their own.
+    let mut smooth = normals.clone();
+    for _ in 0..opts.smoothing {
+        smooth = (0..mesh.num_faces())
+            .map(|f| {
+                smooth[f]
+                    + adj.neighbours[f]
+                        .iter()
+                        .flatten()
+                        .map(|g| smooth[*g as usize])
+                        .sum::<Vector3<f64>>()
+            })
+            .collect();
+    }
+    let unit: Vec<Vector3<f64>> = smooth
+        .iter()
+        .map(|n| n.try_normalize(0.0).unwrap_or_else(Vector3::z))
+        .collect();
+    let edge_len = |f: usize, k: usize| {
+        let face = mesh.faces[f];
+        (mesh.positions[face[(k + 1) % 3].idx()] - mesh.positions[face[k].idx()]).norm()
+    };
+    let mean_edge = {
+        let total: f64 = (0..mesh.num_faces())
+            .map(|f| (0..3).map(|k| edge_len(f, k)).sum::<f64>())
+            .sum();
+        (total / (3 * mesh.num_faces().max(1)) as f64).max(1e-300)
+    };
+    let cos_max = opts.max_angle.to_radians().cos();
+    let mut chart_of = vec![u32::MAX; mesh.num_faces()];
+    let mut grown: Vec<Vec<FaceId>> = Vec::new();
+    for seed in 0..mesh.num_faces() {
+        if chart_of[seed] != u32::MAX {
+            continue;
+        }
+        let id = grown.len() as u32;
+        let mut faces = vec![FaceId(seed as u32)];
+        chart_of[seed] = id;
+        let mut sum_n = unit[seed] * normals[seed].norm();
+        let mut heap: BinaryHeap<Reverse<(u64, u32)>> = BinaryHeap::new();
+        let push = |heap: &mut BinaryHeap<Reverse<(u64, u32)>>,
+                    chart_of: &[u32],
+                    f: usize,
+                    sum_n: &Vector3<f64>| {
+            for nb in adj.neighbours[f].iter().flatten() {
+                let g = *nb as usize;
+                if chart_of[g] != u32::MAX {
+                    continue;
+                }
+                let dir = sum_n.try_normalize(0.0).unwrap_or(unit[f]);
+                let dev = 1.0 - unit[g].dot(&dir);
+                // Boundary change if g joins: its edges already bordering the chart become
+                // interior, the others become boundary.
+                let (mut inner, mut outer) = (0.0, 0.0);
+                for k in 0..3 {
+                    match adj.neighbours[g][k] {
+                        Some(h) if chart_of[h as usize] == chart_of[f] => inner += edge_len(g, k),
+                        _ => outer += edge_len(g, k),
+                    }
+                }
+                let cost = dev + opts.compactness * (outer - inner) / mean_edge * 0.1;
+                // Costs are compared as ordered bits of a non-negative shifted value.
+                let key = ((cost + 10.0).max(0.0)).to_bits();
+                heap.push(Reverse((key, g as u32)));
+            }
+        };
+        push(&mut heap, &chart_of, seed, &sum_n);
+        while let Some(Reverse((_, g))) = heap.pop() {
+            let g = g as usize;
+            if chart_of[g] != u32::MAX {
+                continue;
+            }
+            let dir = sum_n.try_normalize(0.0).unwrap_or(unit[seed]);
+            if unit[g].dot(&dir) < cos_max {
+                continue;
+            }
+            chart_of[g] = id;
+            faces.push(FaceId(g as u32));
+            sum_n += unit[g] * normals[g].norm();
+            push(&mut heap, &chart_of, g, &sum_n);
+        }
+        grown.push(faces);
+    }
+    // Make every chart a disk.
+    let mut charts = Vec::with_capacity(grown.len());
+    let mut todo: Vec<Vec<FaceId>> = grown.into_iter().rev().collect();
+    while let Some(c) = todo.pop() {
+        if is_disk(mesh, &adj, &c) {
+            charts.push(c);
+        } else {
+            let (a, b) = split(&adj, &c);
+            todo.push(b);
+            todo.push(a);
+        }
+    }
+    let charts = merge_small(mesh, &adj, charts, opts.min_faces);
+    let mut face_chart = vec![0u32; mesh.num_faces()];
+    for (i, c) in charts.iter().enumerate() {
+        for f in c {
+            face_chart[f.idx()] = i as u32;
+        }
+    }
+    Charts { face_chart, charts }
+}
+
+/// Merges charts under `min_faces` faces into the neighbouring chart they share most edges
+/// with, when the union is a disk. Deterministic: smallest charts first, ties by index.
+fn merge_small(
+    mesh: &Mesh,
+    adj: &Adjacency,
+    mut charts: Vec<Vec<FaceId>>,
+    min_faces: usize,
+) -> Vec<Vec<FaceId>> {
+    let mut owner = vec![0usize; mesh.num_faces()];
+    for (i, c) in charts.iter().enumerate() {
+        for f in c {
+            owner[f.idx()] = i;
+        }
+    }
+    loop {
+        let mut order: Vec<usize> = (0..charts.len())
+            .filter(|&i| !charts[i].is_empty() && charts[i].len() < min_faces)
+            .collect();
+        order.sort_by_key(|&i| (charts[i].len(), i));
+        let mut changed = false;
+        for i in order {
+            if charts[i].is_empty() || charts[i].len() >= min_faces {
+                continue;
+            }
+            let mut shared: HashMap<usize, usize> = HashMap::new();
+            for f in &charts[i] {
+                for g in adj.neighbours[f.idx()].iter().flatten() {
+                    let o = owner[*g as usize];
+                    if o != i {
+                        *shared.entry(o).or_insert(0) += 1;
+                    }
+                }
+            }
+            let mut cands: Vec<(usize, usize)> = shared.into_iter().collect();
+            cands.sort_by_key(|&(o, n)| (Reverse(n), o));
+            for (o, _) in cands {
+                let union: Vec<FaceId> = charts[o].iter().chain(&charts[i]).copied().collect();
+                if is_disk(mesh, adj, &union) {
+                    for f in &charts[i] {
+                        owner[f.idx()] = o;
+                    }
+                    charts[o] = union;
+                    charts[i].clear();
+                    changed = true;
+                    break;
+                }
+            }
+        }
+        if !changed {
+            break;
+        }
+    }
+    charts.retain(|c| !c.is_empty());
+    charts
+}
+
+/// True if the faces form a topological disk: connected through crossable edges, Euler
+/// characteristic 1, one boundary loop, and every boundary vertex on exactly two boundary edges
+/// (no pinch).
+pub fn is_disk(mesh: &Mesh, adj: &Adjacency, faces: &[FaceId]) -> bool {
+    if faces.is_empty() {
+        return false;
+    }
+    let member: HashMap<u32, ()> = faces.iter().map(|f| (f.0, ())).collect();
+    // Connected through crossable edges inside the chart.
+    let mut seen: HashMap<u32, ()> = HashMap::with_capacity(faces.len());
+    let mut queue = VecDeque::from([faces[0].0]);
+    seen.insert(faces[0].0, ());
+    while let Some(f) = queue.pop_front() {
+        for g in adj.neighbours[f as usize].iter().flatten() {
+            if member.contains_key(g) && seen.insert(*g, ()).is_none() {
+                queue.push_back(*g);
+            }
+        }
+    }
+    if seen.len() != faces.len() {
+        return false;
+    }
+    // Edges: interior if crossable to a member, else boundary.
+    let mut vertices: HashMap<u32, u32> = HashMap::new();
+    let (mut interior2, mut boundary) = (0usize, Vec::new());
+    for f in faces {
+        let face = mesh.faces[f.idx()];
+        for k in 0..3 {
+            vertices.entry(face[k].0).or_insert(0);
+            match adj.neighbours[f.idx()][k] {
+                Some(g) if member.contains_key(&g) => interior2 += 1,
+                _ => boundary.push((face[k].0, face[(k + 1) % 3].0)),
+            }
+        }
+    }
+    let edges = interior2 / 2 + boundary.len();
+    let euler = vertices.len() as i64 - edges as i64 + faces.len() as i64;
+    if euler != 1 || boundary.is_empty() {
+        return false;
+    }
+    for &(a, b) in &boundary {
+        *vertices.get_mut(&a).unwrap() += 1;
+        *vertices.get_mut(&b).unwrap() += 1;
+    }
+    if vertices.values().any(|&d| d != 0 && d != 2) {
+        return false;
+    }
+    // One loop: walk it from the first boundary edge.
+    let next: HashMap<u32, u32> = boundary.iter().copied().collect();
+    if next.len() != boundary.len() {
+        return false;
+    }
+    let start = boundary[0].0;
+    let (mut v, mut steps) = (start, 0);
+    loop {
+        match next.get(&v) {
+            Some(&w) => {
+                v = w;
+                steps += 1;
+            }
+            None => return false,
+        }
+        if v == start || steps > boundary.len() {
+            break;
+        }
+    }
+    v == start && steps == boundary.len()
+}
+
+/// Splits a chart in two by growing from its two mutually farthest faces (breadth first over
+/// crossable edges, alternating), so both parts are connected and non-empty.
+fn split(adj: &Adjacency, faces: &[FaceId]) -> (Vec<FaceId>, Vec<FaceId>) {
+    let member: HashMap<u32, usize> = faces.iter().enumerate().map(|(i, f)| (f.0, i)).collect();
+    let farthest = |from: u32| -> u32 {
+        let mut dist: HashMap<u32, u32> = HashMap::from([(from, 0)]);
+        let mut queue = VecDeque::from([from]);
+        let mut last = from;
+        while let Some(f) = queue.pop_front() {
+            last = f;
+            for g in adj.neighbours[f as usize].iter().flatten() {
+                if member.contains_key(g) && !dist.contains_key(g) {
+                    dist.insert(*g, dist[&f] + 1);
+                    queue.push_back(*g);
+                }
+            }
+        }
+        last
+    };
+    let a = farthest(faces[0].0);
+    let mut b = farthest(a);
+    if b == a {
+        // Disconnected (through crossable edges): take any other face as the second seed.
+        b = faces
+            .iter()
+            .map(|f| f.0)
+            .find(|&f| f != a)
+            .expect("a chart to split has two faces");
+    }
+    let mut owner: HashMap<u32, u8> = HashMap::from([(a, 0), (b, 1)]);
+    let mut queues = [VecDeque::from([a]), VecDeque::from([b])];
+    while !queues[0].is_empty() || !queues[1].is_empty() {
+        for side in 0..2 {
+            if let Some(f) = queues[side].pop_front() {
+                for g in adj.neighbours[f as usize].iter().flatten() {
+                    if member.contains_key(g) && !owner.contains_key(g) {
+                        owner.insert(*g, side as u8);
+                        queues[side].push_back(*g);
+                    }
+                }
+            }
+        }
+    }
+    let (mut pa, mut pb) = (Vec::new(), Vec::new());
+    for f in faces {
+        match owner.get(&f.0) {
+            Some(0) => pa.push(*f),
+            Some(_) => pb.push(*f),
+            // Unreached (another crossable component): its own chart later, via `b`'s side.
+            None => pb.push(*f),
+        }
+    }
+    (pa, pb)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::VertexId;
+    use nalgebra::Point3;
+
+    fn check(mesh: &Mesh) -> Charts {
+        let c = segment(mesh, &SegmentOptions::default());
+        let adj = Adjacency::new(mesh);
+        let mut count = vec![0; mesh.num_faces()];
+        for (i, chart) in c.charts.iter().enumerate() {
+            assert!(is_disk(mesh, &adj, chart), "chart {i} is not a disk");
+            for f in chart {
+                count[f.idx()] += 1;
+                assert_eq!(c.face_chart[f.idx()], i as u32);
+            }
+        }
+        assert!(
+            count.iter().all(|&n| n == 1),
+            "every face in exactly one chart"
+        );
+        c
+    }
+
+    fn icosphere(levels: usize) -> Mesh {
+        let t = (1.0 + 5f64.sqrt()) / 2.0;
+        let mut p: Vec<Point3<f64>> = [
+            (-1.0, t, 0.0),
+            (1.0, t, 0.0),
+            (-1.0, -t, 0.0),
+            (1.0, -t, 0.0),
+            (0.0, -1.0, t),
+            (0.0, 1.0, t),
+            (0.0, -1.0, -t),
+            (0.0, 1.0, -t),
+            (t, 0.0, -1.0),
+            (t, 0.0, 1.0),
+            (-t, 0.0, -1.0),
+            (-t, 0.0, 1.0),
+        ]
+        .iter()
+        .map(|&(x, y, z)| Point3::new(x, y, z))
+        .collect();
+        let mut f: Vec<[u32; 3]> = vec![
+            [0, 11, 5],
+            [0, 5, 1],
+            [0, 1, 7],
+            [0, 7, 10],
+            [0, 10, 11],
+            [1, 5, 9],
+            [5, 11, 4],
+            [11, 10, 2],
+            [10, 7, 6],
+            [7, 1, 8],
+            [3, 9, 4],
+            [3, 4, 2],
+            [3, 2, 6],
+            [3, 6, 8],
+            [3, 8, 9],
+            [4, 9, 5],
+            [2, 4, 11],
+            [6, 2, 10],
+            [8, 6, 7],
+            [9, 8, 1],
+        ];
+        for _ in 0..levels {
+            let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
+            let mut nf = Vec::new();
+            for tri in &f {
+                let m: Vec<u32> = (0..3)
+                    .map(|k| {
+                        let (a, b) = (tri[k].min(tri[(k + 1) % 3]), tri[k].max(tri[(k + 1) % 3]));
+                        *mid.entry((a, b)).or_insert_with(|| {
+                            p.push(nalgebra::center(&p[a as usize], &p[b as usize]));
+                            p.len() as u32 - 1
+                        })
+                    })
+                    .collect();
+                nf.extend([
+                    [tri[0], m[0], m[2]],
+                    [tri[1], m[1], m[0]],
+                    [tri[2], m[2], m[1]],
+                    [m[0], m[1], m[2]],
+                ]);
+            }
+            f = nf;
+        }
+        for q in &mut p {
+            *q = Point3::from(q.coords.normalize());
+        }
+        Mesh {
+            positions: p,
+            faces: f.into_iter().map(|t| t.map(VertexId)).collect(),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn sphere_torus_components_holes_and_non_manifold_all_give_disks() {
+        let sphere = icosphere(3);
+        let c = check(&sphere);
+        assert!(
+            c.charts.len() >= 2 && c.charts.len() <= 40,
+            "{} charts",
+            c.charts.len()
+        );
+
+        let (torus, _) = crate::sample::dented_torus(60, 24, (8, 8));
+        check(&torus);
+
+        // Two components.
+        let mut two = sphere.clone();
+        let n = two.positions.len() as u32;
+        two.positions.extend(
+            sphere
+                .positions
+                .iter()
+                .map(|p| p + Vector3::new(3.0, 0.0, 0.0)),
+        );
+        two.faces
+            .extend(sphere.faces.iter().map(|f| f.map(|v| VertexId(v.0 + n))));
+        let c = check(&two);
+        assert!(c.charts.iter().all(|ch| ch
+            .iter()
+            .all(|f| (f.idx() < sphere.num_faces()) == (ch[0].idx() < sphere.num_faces()))));
+
+        // Holes.
+        let mut holed = sphere.clone();
+        holed.faces = holed
+            .faces
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| i % 17 != 0)
+            .map(|(_, f)| *f)
+            .collect();
+        check(&holed);
+
+        // Non-manifold: fins on three edges, and one face flipped.
+        let mut nm = sphere.clone();
+        for e in 0..3 {
+            let f = nm.faces[e * 50];
+            let p = nm.positions[f[0].idx()] * 1.5;
+            nm.positions.push(p);
+            nm.faces
+                .push([f[0], f[1], VertexId(nm.positions.len() as u32 - 1)]);
+        }
+        nm.faces[7] = [nm.faces[7][0], nm.faces[7][2], nm.faces[7][1]];
+        check(&nm);
+    }
+
+    #[test]
+    fn a_flat_disk_stays_one_chart_and_segmentation_is_deterministic() {
+        let mut m = icosphere(2);
+        // Flatten the upper cap onto a plane: keep faces with all vertices above y = 0.5.
+        m.faces
+            .retain(|f| f.iter().all(|v| m.positions[v.idx()].y > 0.5));
+        for p in &mut m.positions {
+            p.y = 1.0;
+        }
+        let c = check(&m);
+        assert_eq!(c.charts.len(), 1);
+        let sphere = icosphere(3);
+        assert_eq!(
+            segment(&sphere, &SegmentOptions::default()),
+            segment(&sphere, &SegmentOptions::default())
+        );
+    }
+}
