@@ -358,12 +358,12 @@ fn split(adj: &Adjacency, faces: &[FaceId]) -> (Vec<FaceId>, Vec<FaceId>) {
     let mut owner: HashMap<u32, u8> = HashMap::from([(a, 0), (b, 1)]);
     let mut queues = [VecDeque::from([a]), VecDeque::from([b])];
     while !queues[0].is_empty() || !queues[1].is_empty() {
-        for side in 0..2 {
-            if let Some(f) = queues[side].pop_front() {
+        for (side, queue) in queues.iter_mut().enumerate() {
+            if let Some(f) = queue.pop_front() {
                 for g in adj.neighbours[f as usize].iter().flatten() {
                     if member.contains_key(g) && !owner.contains_key(g) {
                         owner.insert(*g, side as u8);
-                        queues[side].push_back(*g);
+                        queue.push_back(*g);
                     }
                 }
             }
