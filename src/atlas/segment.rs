@@ -328,7 +328,7 @@ pub fn is_disk(mesh: &Mesh, adj: &Adjacency, faces: &[FaceId]) -> bool {
 
 /// Splits a chart in two by growing from its two mutually farthest faces (breadth first over
 /// crossable edges, alternating), so both parts are connected and non-empty.
-fn split(adj: &Adjacency, faces: &[FaceId]) -> (Vec<FaceId>, Vec<FaceId>) {
+pub fn split(adj: &Adjacency, faces: &[FaceId]) -> (Vec<FaceId>, Vec<FaceId>) {
     let member: HashMap<u32, usize> = faces.iter().enumerate().map(|(i, f)| (f.0, i)).collect();
     let farthest = |from: u32| -> u32 {
         let mut dist: HashMap<u32, u32> = HashMap::from([(from, 0)]);

@@ -1,0 +1,422 @@
+//! Per-chart flattening (issue 4, step 2, first half): a flip-free starting map and Sander et
+//! al.'s stretch measures. The stretch minimisation with the paper's view weight and shape
+//! barrier is to come.
+//!
+//! The start: orthogonal projection onto the chart's mean-normal plane when that is injective
+//! (isometric for planar charts, and near it for gently curved ones); otherwise Floater's
+//! mean-value embedding with the boundary on a circle by arc length, which is one-to-one for
+//! any disk (positive weights, convex boundary: Floater 2003).
+
+use crate::mesh::{FaceId, Mesh, VertexId};
+use nalgebra::{Point3, Vector2, Vector3};
+use std::collections::HashMap;
+
+/// A flattened chart with its own vertex numbering.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChartMap {
+    /// Global vertex of each local vertex.
+    pub vertices: Vec<VertexId>,
+    /// UV of each local vertex (chart units: 3D length for an isometric map).
+    pub uv: Vec<Vector2<f64>>,
+    /// Faces in local vertex indices, in the order of `face_ids`.
+    pub faces: Vec<[u32; 3]>,
+    /// The mesh face of each local face.
+    pub face_ids: Vec<FaceId>,
+}
+
+/// Stretch of one triangle (Sander et al. 2001), from its 3D and 2D corners.
+/// Returns `(L2, L-infinity, signed 2D area)`; non-finite stretch for a flipped or degenerate
+/// 2D triangle.
+pub fn triangle_stretch(p: [Point3<f64>; 3], q: [Vector2<f64>; 3]) -> (f64, f64, f64) {
+    let area2 = 0.5 * ((q[1] - q[0]).perp(&(q[2] - q[0])));
+    if area2 <= 0.0 {
+        return (f64::INFINITY, f64::INFINITY, area2);
+    }
+    let (s, t) = (q.map(|v| v.x), q.map(|v| v.y));
+    let ss: Vector3<f64> =
+        (p[0].coords * (t[1] - t[2]) + p[1].coords * (t[2] - t[0]) + p[2].coords * (t[0] - t[1]))
+            / (2.0 * area2);
+    let st: Vector3<f64> =
+        (p[0].coords * (s[2] - s[1]) + p[1].coords * (s[0] - s[2]) + p[2].coords * (s[1] - s[0]))
+            / (2.0 * area2);
+    let (a, b, c) = (ss.dot(&ss), ss.dot(&st), st.dot(&st));
+    let l2 = ((a + c) / 2.0).sqrt();
+    let linf = (((a + c) + ((a - c).powi(2) + 4.0 * b * b).sqrt()) / 2.0).sqrt();
+    (l2, linf, area2)
+}
+
+/// Stretch of a whole map, with Sander's normalisation: the 2D domain is scaled so its total
+/// area equals the total 3D area, so an isometry scores exactly 1.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Stretch {
+    /// `sqrt(sum L2(T)^2 A3(T) / sum A3(T))` after normalisation.
+    pub l2: f64,
+    /// Largest per-triangle L-infinity stretch after normalisation.
+    pub linf: f64,
+    /// UV triangles with negative signed area.
+    pub flipped: usize,
+    /// UV triangles with zero area.
+    pub zero_area: usize,
+}
+
+/// Stretch of `maps` taken together (one normalisation for all of them).
+pub fn stretch(mesh: &Mesh, maps: &[ChartMap]) -> Stretch {
+    let (mut a3, mut a2) = (0.0, 0.0);
+    let mut tris = Vec::new();
+    let (mut flipped, mut zero_area) = (0, 0);
+    for m in maps {
+        for (f, lf) in m.face_ids.iter().zip(&m.faces) {
+            let p = mesh.triangle(*f);
+            let q = lf.map(|i| m.uv[i as usize]);
+            let area3 = 0.5 * mesh.face_normal_area(*f).norm();
+            let (_, _, area2) = triangle_stretch(p, q);
+            if area2 < 0.0 {
+                flipped += 1;
+            } else if area2 == 0.0 {
+                zero_area += 1;
+            }
+            a3 += area3;
+            a2 += area2.abs();
+            tris.push((p, q, area3));
+        }
+    }
+    // Scaling the domain by k divides stretch by k: normalise with k = sqrt(A2 / A3).
+    let k = if a3 > 0.0 { (a2 / a3).sqrt() } else { 1.0 };
+    let (mut num, mut linf) = (0.0, 0.0f64);
+    for (p, q, area3) in tris {
+        let (l2, li, _) = triangle_stretch(p, q.map(|v| v / k));
+        num += l2 * l2 * area3;
+        linf = linf.max(li);
+    }
+    Stretch {
+        l2: if a3 > 0.0 {
+            (num / a3).sqrt()
+        } else {
+            f64::NAN
+        },
+        linf,
+        flipped,
+        zero_area,
+    }
+}
+
+/// Flattens one disk-shaped chart (see the module docs). The chart must be a disk
+/// ([`super::segment::is_disk`]).
+pub fn flatten(mesh: &Mesh, faces: &[FaceId]) -> ChartMap {
+    let mut local: HashMap<u32, u32> = HashMap::new();
+    let mut vertices = Vec::new();
+    let lf: Vec<[u32; 3]> = faces
+        .iter()
+        .map(|f| {
+            mesh.faces[f.idx()].map(|v| {
+                *local.entry(v.0).or_insert_with(|| {
+                    vertices.push(v);
+                    vertices.len() as u32 - 1
+                })
+            })
+        })
+        .collect();
+    let pos: Vec<Point3<f64>> = vertices.iter().map(|v| mesh.positions[v.idx()]).collect();
+    // Every chart is scaled so its 2D area equals its 3D area: packing decides the relative
+    // scale of charts later, and stretch figures compare shapes, not units.
+    let area3: f64 = faces
+        .iter()
+        .map(|f| 0.5 * mesh.face_normal_area(*f).norm())
+        .sum();
+    let map = |uv: Vec<Vector2<f64>>| {
+        let area2: f64 = lf
+            .iter()
+            .map(|t| {
+                0.5 * (uv[t[1] as usize] - uv[t[0] as usize])
+                    .perp(&(uv[t[2] as usize] - uv[t[0] as usize]))
+            })
+            .sum();
+        let k = if area2 > 0.0 && area3 > 0.0 {
+            (area3 / area2).sqrt()
+        } else {
+            1.0
+        };
+        ChartMap {
+            vertices: vertices.clone(),
+            uv: uv.into_iter().map(|v| v * k).collect(),
+            faces: lf.clone(),
+            face_ids: faces.to_vec(),
+        }
+    };
+    // 1. Projection onto the mean-normal plane, if every triangle keeps its orientation and
+    //    no triangle is squashed (area ratio above 0.5 of its 3D area).
+    let n: Vector3<f64> = faces.iter().map(|f| mesh.face_normal_area(*f)).sum();
+    if let Some(n) = n.try_normalize(1e-300) {
+        let e1 = n
+            .cross(&if n.x.abs() < 0.9 {
+                Vector3::x()
+            } else {
+                Vector3::y()
+            })
+            .normalize();
+        let e2 = n.cross(&e1);
+        let uv: Vec<Vector2<f64>> = pos
+            .iter()
+            .map(|p| Vector2::new(p.coords.dot(&e1), p.coords.dot(&e2)))
+            .collect();
+        let ok = lf.iter().zip(faces).all(|(t, f)| {
+            let q = t.map(|i| uv[i as usize]);
+            let a2 = 0.5 * (q[1] - q[0]).perp(&(q[2] - q[0]));
+            a2 > 0.5 * 0.5 * mesh.face_normal_area(*f).norm()
+        });
+        if ok && !boundary_self_intersects(&lf, &uv) {
+            return map(uv);
+        }
+    }
+    // 2. Mean-value embedding with the boundary on a circle.
+    map(mean_value_embedding(&lf, &pos))
+}
+
+/// Directed boundary edges of a disk's faces, as a map from start to end vertex.
+fn boundary_next(faces: &[[u32; 3]]) -> HashMap<u32, u32> {
+    let mut directed: HashMap<(u32, u32), u32> = HashMap::new();
+    for t in faces {
+        for k in 0..3 {
+            *directed.entry((t[k], t[(k + 1) % 3])).or_insert(0) += 1;
+        }
+    }
+    directed
+        .keys()
+        .filter(|(a, b)| !directed.contains_key(&(*b, *a)))
+        .map(|&(a, b)| (a, b))
+        .collect()
+}
+
+/// True if two boundary edges of the map cross (a projection can fold over itself at the
+/// border even when every triangle keeps its orientation).
+fn boundary_self_intersects(faces: &[[u32; 3]], uv: &[Vector2<f64>]) -> bool {
+    let edges: Vec<(u32, u32)> = boundary_next(faces).into_iter().collect();
+    if edges.len() > 4000 {
+        // Quadratic check: for very long borders, fall back to the embedding that is
+        // guaranteed one-to-one.
+        return true;
+    }
+    let cross = |a: Vector2<f64>, b: Vector2<f64>, c: Vector2<f64>| (b - a).perp(&(c - a));
+    for (i, &(a, b)) in edges.iter().enumerate() {
+        for &(c, d) in &edges[i + 1..] {
+            if a == c || a == d || b == c || b == d {
+                continue;
+            }
+            let (pa, pb, pc, pd) = (
+                uv[a as usize],
+                uv[b as usize],
+                uv[c as usize],
+                uv[d as usize],
+            );
+            let (d1, d2) = (cross(pc, pd, pa), cross(pc, pd, pb));
+            let (d3, d4) = (cross(pa, pb, pc), cross(pa, pb, pd));
+            if d1 * d2 < 0.0 && d3 * d4 < 0.0 {
+                return true;
+            }
+        }
+    }
+    false
+}
+
+/// Floater's mean-value embedding: boundary on a circle (by arc length, counter-clockwise),
+/// each interior vertex the mean-value-weighted average of its neighbours. Solved by
+/// BiCGSTAB (the weights are not symmetric) with a Jacobi preconditioner.
+fn mean_value_embedding(faces: &[[u32; 3]], pos: &[Point3<f64>]) -> Vec<Vector2<f64>> {
+    let n = pos.len();
+    let next = boundary_next(faces);
+    let mut uv = vec![Vector2::zeros(); n];
+    let mut fixed = vec![false; n];
+    // Walk the loop; a disk has exactly one.
+    let start = *next.keys().min().expect("a disk has a boundary");
+    let mut lp = vec![start];
+    let mut v = next[&start];
+    while v != start && lp.len() <= next.len() {
+        lp.push(v);
+        v = next[&v];
+    }
+    let len: Vec<f64> = (0..lp.len())
+        .map(|i| (pos[lp[(i + 1) % lp.len()] as usize] - pos[lp[i] as usize]).norm())
+        .collect();
+    let total: f64 = len.iter().sum();
+    let radius = total / std::f64::consts::TAU;
+    let mut acc = 0.0;
+    for (i, &b) in lp.iter().enumerate() {
+        let a = std::f64::consts::TAU * acc / total;
+        uv[b as usize] = Vector2::new(a.cos(), a.sin()) * radius;
+        fixed[b as usize] = true;
+        acc += len[i];
+    }
+    // Mean-value weights: w_ij = (tan(a/2) + tan(b/2)) / |p_i - p_j|, angles at i.
+    let mut w: HashMap<(u32, u32), f64> = HashMap::new();
+    for t in faces {
+        for k in 0..3 {
+            let (i, j, l) = (t[k], t[(k + 1) % 3], t[(k + 2) % 3]);
+            let (pi, pj, pl) = (pos[i as usize], pos[j as usize], pos[l as usize]);
+            let (eij, eil) = (pj - pi, pl - pi);
+            let angle = eij.angle(&eil);
+            let th = (angle / 2.0).tan();
+            let (dij, dil) = (eij.norm().max(1e-300), eil.norm().max(1e-300));
+            *w.entry((i, j)).or_insert(0.0) += th / dij;
+            *w.entry((i, l)).or_insert(0.0) += th / dil;
+        }
+    }
+    let interior: Vec<u32> = (0..n as u32).filter(|&i| !fixed[i as usize]).collect();
+    if interior.is_empty() {
+        return uv;
+    }
+    let index: HashMap<u32, usize> = interior.iter().enumerate().map(|(k, &i)| (i, k)).collect();
+    // Rows: diag * x_i - sum_j w_ij x_j = sum_{j fixed} w_ij u_j.
+    let m = interior.len();
+    let mut rows: Vec<Vec<(usize, f64)>> = vec![Vec::new(); m];
+    let mut diag = vec![0.0; m];
+    let mut rhs = vec![Vector2::zeros(); m];
+    let mut keys: Vec<&(u32, u32)> = w.keys().collect();
+    keys.sort();
+    for &(i, j) in keys {
+        let wij = w[&(i, j)];
+        let Some(&r) = index.get(&i) else { continue };
+        diag[r] += wij;
+        match index.get(&j) {
+            Some(&c) => rows[r].push((c, wij)),
+            None => rhs[r] += uv[j as usize] * wij,
+        }
+    }
+    for dim in 0..2 {
+        let b: Vec<f64> = rhs.iter().map(|v| v[dim]).collect();
+        let x = bicgstab(&rows, &diag, &b);
+        for (k, &i) in interior.iter().enumerate() {
+            uv[i as usize][dim] = x[k];
+        }
+    }
+    uv
+}
+
+/// Solves `(D - W) x = b` (D diagonal, W the off-diagonal weights) by Jacobi-preconditioned
+/// BiCGSTAB to a relative residual of 1e-12.
+fn bicgstab(rows: &[Vec<(usize, f64)>], diag: &[f64], b: &[f64]) -> Vec<f64> {
+    let n = b.len();
+    let apply = |x: &[f64]| -> Vec<f64> {
+        (0..n)
+            .map(|i| diag[i] * x[i] - rows[i].iter().map(|&(j, w)| w * x[j]).sum::<f64>())
+            .collect()
+    };
+    let precond = |r: &[f64]| -> Vec<f64> { (0..n).map(|i| r[i] / diag[i]).collect() };
+    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+    let mut x = precond(b);
+    let ax = apply(&x);
+    let mut r: Vec<f64> = (0..n).map(|i| b[i] - ax[i]).collect();
+    let r0 = r.clone();
+    let bnorm = dot(b, b).sqrt().max(1e-300);
+    let (mut rho, mut alpha, mut omega) = (1.0, 1.0, 1.0);
+    let mut v = vec![0.0; n];
+    let mut p = vec![0.0; n];
+    for _ in 0..10 * n + 100 {
+        if dot(&r, &r).sqrt() / bnorm < 1e-12 {
+            break;
+        }
+        let rho1 = dot(&r0, &r);
+        if rho1.abs() < 1e-300 {
+            break;
+        }
+        let beta = (rho1 / rho) * (alpha / omega);
+        rho = rho1;
+        for i in 0..n {
+            p[i] = r[i] + beta * (p[i] - omega * v[i]);
+        }
+        let ph = precond(&p);
+        v = apply(&ph);
+        alpha = rho / dot(&r0, &v);
+        let s: Vec<f64> = (0..n).map(|i| r[i] - alpha * v[i]).collect();
+        let sh = precond(&s);
+        let t = apply(&sh);
+        let tt = dot(&t, &t);
+        omega = if tt > 0.0 { dot(&t, &s) / tt } else { 0.0 };
+        for i in 0..n {
+            x[i] += alpha * ph[i] + omega * sh[i];
+            r[i] = s[i] - omega * t[i];
+        }
+        if omega == 0.0 {
+            break;
+        }
+    }
+    x
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::atlas::segment::{segment, SegmentOptions};
+
+    /// A planar disk (a triangulated polygon in a tilted plane) maps isometrically.
+    #[test]
+    fn planar_disk_maps_isometrically() {
+        let (n_ring, n_rad) = (24, 6);
+        let mut positions = vec![Point3::origin()];
+        for r in 1..=n_rad {
+            for k in 0..n_ring {
+                let a = std::f64::consts::TAU * k as f64 / n_ring as f64;
+                let (x, y) = (r as f64 * a.cos(), r as f64 * a.sin());
+                // Plane tilted about the x axis, with a little jitter inside the plane.
+                let j = 0.1 * ((k * 7 + r * 3) % 5) as f64 / 5.0;
+                positions.push(Point3::new(x + j, (y - j) * 0.6, (y - j) * 0.8));
+            }
+        }
+        let id = |r: usize, k: usize| {
+            VertexId(if r == 0 {
+                0
+            } else {
+                (1 + (r - 1) * n_ring + k % n_ring) as u32
+            })
+        };
+        let mut faces = Vec::new();
+        for k in 0..n_ring {
+            faces.push([id(0, 0), id(1, k), id(1, k + 1)]);
+        }
+        for r in 1..n_rad {
+            for k in 0..n_ring {
+                faces.push([id(r, k), id(r + 1, k), id(r + 1, k + 1)]);
+                faces.push([id(r, k), id(r + 1, k + 1), id(r, k + 1)]);
+            }
+        }
+        let mesh = Mesh {
+            positions,
+            faces,
+            ..Default::default()
+        };
+        let all: Vec<FaceId> = (0..mesh.num_faces() as u32).map(FaceId).collect();
+        let s = stretch(&mesh, &[flatten(&mesh, &all)]);
+        assert!(
+            (s.l2 - 1.0).abs() < 1e-3 && (s.linf - 1.0).abs() < 1e-3,
+            "{s:?}"
+        );
+        assert_eq!((s.flipped, s.zero_area), (0, 0));
+    }
+
+    /// Every chart of curved meshes flattens without a flipped or zero-area triangle.
+    #[test]
+    fn charts_of_curved_meshes_flatten_without_flips() {
+        let (torus, _) = crate::sample::dented_torus(80, 30, (8, 8));
+        let c = segment(&torus, &SegmentOptions::default());
+        let maps: Vec<ChartMap> = c.charts.iter().map(|ch| flatten(&torus, ch)).collect();
+        let s = stretch(&torus, &maps);
+        assert_eq!((s.flipped, s.zero_area), (0, 0), "{s:?}");
+        assert!(s.l2.is_finite() && s.l2 >= 1.0);
+        // A single chart that cannot be projected (a hemisphere-like cap) uses the mean-value
+        // embedding, still without flips.
+        let cap: Vec<FaceId> = c.charts.iter().max_by_key(|ch| ch.len()).unwrap().clone();
+        let m = mean_value_embedding(
+            &flatten(&torus, &cap).faces,
+            &flatten(&torus, &cap)
+                .vertices
+                .iter()
+                .map(|v| torus.positions[v.idx()])
+                .collect::<Vec<_>>(),
+        );
+        let map = ChartMap {
+            uv: m,
+            ..flatten(&torus, &cap)
+        };
+        let s = stretch(&torus, &[map]);
+        assert_eq!(s.flipped, 0, "{s:?}");
+    }
+}
