@@ -368,3 +368,21 @@ fn missing_scene_parts_and_unknown_formats() {
     let err = fails(d.path(), &["--colmap", "images"]);
     assert!(err.contains("no COLMAP model"), "{err}");
 }
+
+#[test]
+fn gltf_accessor_past_the_buffer() {
+    let d = setup();
+    std::fs::remove_file(d.path().join("mesh.obj")).unwrap();
+    std::fs::write(d.path().join("b.bin"), [0u8; 12]).unwrap();
+    let g = serde_json::json!({
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "buffers": [{"uri": "b.bin", "byteLength": 12}],
+        "bufferViews": [{"buffer": 0, "byteLength": 360}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 30, "type": "VEC3",
+                       "min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 1.0]}]
+    });
+    std::fs::write(d.path().join("mesh.gltf"), g.to_string()).unwrap();
+    let err = fails(d.path(), &["."]);
+    assert!(err.contains("mesh.gltf"), "{err}");
+}

@@ -10,8 +10,21 @@ use serde_json::json;
 use std::collections::HashMap;
 use std::path::Path;
 
-/// Reads a `.gltf` or `.glb` file.
+/// Reads a `.gltf` or `.glb` file. The `gltf` crate validates indices but may still panic
+/// on byte ranges that run past a buffer in a corrupt file; such a panic is turned into an
+/// error naming the file, so bad input never takes the process down.
 pub fn read(path: &Path) -> Result<(Mesh, LoadReport)> {
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| read_inner(path))) {
+        Ok(r) => r,
+        Err(_) => Err(Error::parse(
+            path,
+            crate::error::Location::File,
+            "corrupt glTF: an accessor or buffer view runs past its buffer",
+        )),
+    }
+}
+
+fn read_inner(path: &Path) -> Result<(Mesh, LoadReport)> {
     let g = gltf::Gltf::open(path).map_err(|e| match e {
         gltf::Error::Io(io) => Error::io(path, io),
         other => Error::parse(path, crate::error::Location::File, other.to_string()),
