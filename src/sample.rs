@@ -153,11 +153,11 @@ pub fn dented_torus(n_theta: usize, n_phi: usize, tex_size: (u32, u32)) -> (Mesh
     let mut uv_faces = Vec::new();
     for i in 0..n_theta {
         for j in 0..n_phi {
-            // Counter-clockwise seen from outside (d/dtheta x d/dphi points inwards here).
-            faces.push([vid(i, j), vid(i, j + 1), vid(i + 1, j + 1)]);
-            uv_faces.push([tid(i, j), tid(i, j + 1), tid(i + 1, j + 1)]);
-            faces.push([vid(i, j), vid(i + 1, j + 1), vid(i + 1, j)]);
-            uv_faces.push([tid(i, j), tid(i + 1, j + 1), tid(i + 1, j)]);
+            // Counter-clockwise seen from outside: d/dtheta x d/dphi points outwards.
+            faces.push([vid(i, j), vid(i + 1, j + 1), vid(i, j + 1)]);
+            uv_faces.push([tid(i, j), tid(i + 1, j + 1), tid(i, j + 1)]);
+            faces.push([vid(i, j), vid(i + 1, j), vid(i + 1, j + 1)]);
+            uv_faces.push([tid(i, j), tid(i + 1, j), tid(i + 1, j + 1)]);
         }
     }
     let mesh = Mesh {
@@ -501,5 +501,22 @@ pub fn generate_to(
             mesh.normals = None;
             generate(&mesh, &img, opts, out)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    /// The torus is oriented outwards (positive signed volume), as the renderer, binding and
+    /// atlas assume.
+    #[test]
+    fn dented_torus_faces_outwards() {
+        let (m, _) = super::dented_torus(40, 16, (4, 4));
+        let vol: f64 = (0..m.num_faces() as u32)
+            .map(|f| {
+                let [a, b, c] = m.triangle(crate::mesh::FaceId(f));
+                a.coords.dot(&b.coords.cross(&c.coords)) / 6.0
+            })
+            .sum();
+        assert!(vol > 0.0, "signed volume {vol}");
     }
 }

@@ -1,11 +1,10 @@
-//! Per-chart flattening (issue 4, step 2, first half): a flip-free starting map and Sander et
-//! al.'s stretch measures. The stretch minimisation with the paper's view weight and shape
-//! barrier is to come.
+//! Per-chart flattening (issue 4, step 2): a flip-free starting map and Sander et al.'s
+//! stretch measures; [`super::optimize`] then minimises the paper's stretch from it.
 //!
-//! The start: orthogonal projection onto the chart's mean-normal plane when that is injective
-//! (isometric for planar charts, and near it for gently curved ones); otherwise Floater's
-//! mean-value embedding with the boundary on a circle by arc length, which is one-to-one for
-//! any disk (positive weights, convex boundary: Floater 2003).
+//! The start, first that is one-to-one: orthogonal projection onto the chart's mean-normal
+//! plane (isometric for planar charts); the least-squares conformal map (free boundary, good for
+//! long or curved charts); Floater's mean-value embedding with the boundary on a circle by arc
+//! length, one-to-one for any disk (positive weights, convex boundary: Floater 2003).
 
 use crate::mesh::{FaceId, Mesh, VertexId};
 use nalgebra::{Point3, Vector2, Vector3};
@@ -168,8 +167,211 @@ pub fn flatten(mesh: &Mesh, faces: &[FaceId]) -> ChartMap {
             return map(uv);
         }
     }
-    // 2. Mean-value embedding with the boundary on a circle.
+    // 2. Least-squares conformal map (free boundary), if it is one-to-one: far better than a
+    //    circle for long or branching charts, but not guaranteed flip-free.
+    if let Some(uv) = lscm(&lf, &pos) {
+        let ok = lf.iter().all(|t| {
+            let q = t.map(|i| uv[i as usize]);
+            (q[1] - q[0]).perp(&(q[2] - q[0])) > 0.0
+        });
+        if ok && !boundary_self_intersects(&lf, &uv) {
+            return map(uv);
+        }
+    }
+    // 3. Mean-value embedding with the boundary on a circle: always one-to-one.
     map(mean_value_embedding(&lf, &pos))
+}
+
+/// Least-squares conformal map (Levy et al. 2002) with the two boundary vertices farthest
+/// apart pinned, solved by conjugate gradients on the normal equations. `None` if it does not
+/// converge or is degenerate.
+fn lscm(faces: &[[u32; 3]], pos: &[Point3<f64>]) -> Option<Vec<Vector2<f64>>> {
+    let n = pos.len();
+    let next = boundary_next(faces);
+    let bverts: Vec<u32> = {
+        let mut b: Vec<u32> = next.keys().copied().collect();
+        b.sort();
+        b
+    };
+    if bverts.len() < 2 {
+        return None;
+    }
+    // Pins: an extreme boundary vertex and the boundary vertex farthest from it.
+    let far = |from: u32| -> u32 {
+        *bverts
+            .iter()
+            .max_by(|&&a, &&b| {
+                (pos[a as usize] - pos[from as usize])
+                    .norm()
+                    .total_cmp(&(pos[b as usize] - pos[from as usize]).norm())
+                    .then(b.cmp(&a))
+            })
+            .unwrap()
+    };
+    let p0 = far(bverts[0]);
+    let p1 = far(p0);
+    if p0 == p1 {
+        return None;
+    }
+    let d = (pos[p1 as usize] - pos[p0 as usize]).norm();
+    let mut pinned: HashMap<u32, Vector2<f64>> = HashMap::new();
+    pinned.insert(p0, Vector2::zeros());
+    pinned.insert(p1, Vector2::new(d, 0.0));
+    // Unknown index of each free vertex (u and v interleaved).
+    let mut idx = vec![usize::MAX; n];
+    let mut m = 0;
+    for (i, slot) in idx.iter_mut().enumerate() {
+        if !pinned.contains_key(&(i as u32)) {
+            *slot = m;
+            m += 1;
+        }
+    }
+    // Per triangle: coefficients (a_k, b_k) of the complex residual sum_k (a_k + i b_k) U_k.
+    let coeffs: Vec<[(f64, f64); 3]> = faces
+        .iter()
+        .map(|t| {
+            let p = t.map(|i| pos[i as usize]);
+            let e1 = p[1] - p[0];
+            let n3 = e1.cross(&(p[2] - p[0]));
+            let area = 0.5 * n3.norm();
+            let x = e1.normalize();
+            let y = n3.normalize().cross(&x);
+            let l = [
+                Vector2::zeros(),
+                Vector2::new(e1.norm(), 0.0),
+                Vector2::new((p[2] - p[0]).dot(&x), (p[2] - p[0]).dot(&y)),
+            ];
+            let s = 1.0 / (2.0 * area.max(1e-300)).sqrt();
+            std::array::from_fn(|k| {
+                let w = l[(k + 2) % 3] - l[(k + 1) % 3];
+                (w.x * s, w.y * s)
+            })
+        })
+        .collect();
+    // Residual rows: r1 = sum a u - b v, r2 = sum b u + a v.
+    let apply = |x: &[f64], out: &mut Vec<f64>, fixed: bool| {
+        out.clear();
+        for (t, c) in faces.iter().zip(&coeffs) {
+            let (mut r1, mut r2) = (0.0, 0.0);
+            for k in 0..3 {
+                let vi = t[k] as usize;
+                let (u, v) = if idx[vi] == usize::MAX {
+                    if !fixed {
+                        continue;
+                    }
+                    let p = pinned[&t[k]];
+                    (p.x, p.y)
+                } else {
+                    if fixed {
+                        continue;
+                    }
+                    (x[2 * idx[vi]], x[2 * idx[vi] + 1])
+                };
+                let (a, b) = c[k];
+                r1 += a * u - b * v;
+                r2 += b * u + a * v;
+            }
+            out.push(r1);
+            out.push(r2);
+        }
+    };
+    let apply_t = |r: &[f64], out: &mut Vec<f64>| {
+        out.clear();
+        out.resize(2 * m, 0.0);
+        for (fi, (t, c)) in faces.iter().zip(&coeffs).enumerate() {
+            let (r1, r2) = (r[2 * fi], r[2 * fi + 1]);
+            for k in 0..3 {
+                let vi = t[k] as usize;
+                if idx[vi] == usize::MAX {
+                    continue;
+                }
+                let (a, b) = c[k];
+                out[2 * idx[vi]] += a * r1 + b * r2;
+                out[2 * idx[vi] + 1] += -b * r1 + a * r2;
+            }
+        }
+    };
+    // Normal equations A^T A x = -A^T (A_fixed p).
+    let mut tmp = Vec::new();
+    apply(&[], &mut tmp, true);
+    let mut rhs = Vec::new();
+    apply_t(&tmp, &mut rhs);
+    for v in &mut rhs {
+        *v = -*v;
+    }
+    let normal = |x: &[f64], out: &mut Vec<f64>| {
+        let mut r = Vec::new();
+        apply(x, &mut r, false);
+        apply_t(&r, out);
+    };
+    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+    // Jacobi preconditioner: the diagonal of A^T A is sum (a^2 + b^2) for both u and v.
+    let mut diag = vec![0.0; 2 * m];
+    for (t, c) in faces.iter().zip(&coeffs) {
+        for k in 0..3 {
+            let vi = t[k] as usize;
+            if idx[vi] != usize::MAX {
+                let (a, b) = c[k];
+                diag[2 * idx[vi]] += a * a + b * b;
+                diag[2 * idx[vi] + 1] += a * a + b * b;
+            }
+        }
+    }
+    if diag.iter().any(|d| *d <= 0.0) {
+        return None;
+    }
+    let mut x = vec![0.0; 2 * m];
+    let mut r = rhs.clone();
+    let mut z: Vec<f64> = r.iter().zip(&diag).map(|(r, d)| r / d).collect();
+    let mut p = z.clone();
+    let mut rz = dot(&r, &z);
+    let bb = dot(&rhs, &rhs).max(1e-300);
+    let mut ap = Vec::new();
+    for _ in 0..(4 * m + 200).min(20_000) {
+        if dot(&r, &r) <= 1e-20 * bb {
+            break;
+        }
+        normal(&p, &mut ap);
+        let pap = dot(&p, &ap);
+        if pap <= 0.0 {
+            return None;
+        }
+        let alpha = rz / pap;
+        for i in 0..2 * m {
+            x[i] += alpha * p[i];
+            r[i] -= alpha * ap[i];
+        }
+        for i in 0..2 * m {
+            z[i] = r[i] / diag[i];
+        }
+        let rz1 = dot(&r, &z);
+        let beta = rz1 / rz;
+        rz = rz1;
+        for i in 0..2 * m {
+            p[i] = z[i] + beta * p[i];
+        }
+    }
+    if dot(&r, &r) > 1e-12 * bb {
+        return None;
+    }
+    let uv: Vec<Vector2<f64>> = (0..n)
+        .map(|i| match pinned.get(&(i as u32)) {
+            Some(p) => *p,
+            None => Vector2::new(x[2 * idx[i]], x[2 * idx[i] + 1]),
+        })
+        .collect();
+    // LSCM may come out mirrored: flip v if most area is negative.
+    let signed: f64 = faces
+        .iter()
+        .map(|t| {
+            (uv[t[1] as usize] - uv[t[0] as usize]).perp(&(uv[t[2] as usize] - uv[t[0] as usize]))
+        })
+        .sum();
+    Some(if signed < 0.0 {
+        uv.into_iter().map(|v| Vector2::new(v.x, -v.y)).collect()
+    } else {
+        uv
+    })
 }
 
 /// Directed boundary edges of a disk's faces, as a map from start to end vertex.
