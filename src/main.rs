@@ -73,6 +73,33 @@ enum Command {
         #[arg(long)]
         json: Option<PathBuf>,
     },
+    /// Give a mesh texture coordinates: charts, stretch minimisation, packing (stage 1).
+    Param {
+        /// Input mesh (.obj, .ply, .gltf, .glb); existing UVs are ignored.
+        mesh: PathBuf,
+        /// Output mesh with UVs (.obj, .ply or .glb); a layout picture is written beside it
+        /// as <stem>_layout.png.
+        #[arg(short, long)]
+        out: PathBuf,
+        /// Atlas size in texels.
+        #[arg(long, default_value_t = 4096)]
+        size: u32,
+        /// Gutter between charts, in texels.
+        #[arg(long, default_value_t = 4)]
+        gutter: u32,
+        /// Viewing direction V of the important view (from the eye towards the object), x,y,z.
+        #[arg(long, value_parser = parse_vec3)]
+        view_dir: Option<[f64; 3]>,
+        /// k in the visual importance w = 1 / (<N, V> + k).
+        #[arg(long, default_value_t = 1.5)]
+        k: f64,
+        /// Smallest height/base ratio of a UV triangle (shape barrier).
+        #[arg(long, default_value_t = 0.05)]
+        alpha: f64,
+        /// Write the report as JSON here.
+        #[arg(long)]
+        report: Option<PathBuf>,
+    },
     /// Generate a sample scene with known true colours.
     Sample {
         /// Output directory.
@@ -211,6 +238,47 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
                 let s = serde_json::to_string_pretty(&report).expect("report serialises");
                 scantex::io::write_atomic(&p, s.as_bytes())?;
             }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Param {
+            mesh,
+            out,
+            size,
+            gutter,
+            view_dir,
+            k,
+            alpha,
+            report,
+        } => {
+            if !(k > 1.0 && (0.0..0.5).contains(&alpha) && (16..=32768).contains(&size)) {
+                return Err(scantex::Error::Invalid(
+                    "--k must exceed 1, --alpha lie in [0, 0.5), --size in 16..=32768".into(),
+                ));
+            }
+            let (input, _) = scantex::io::read_mesh(&mesh)?;
+            let mut opts = scantex::atlas::AtlasOptions::default();
+            opts.pack.size = size;
+            opts.pack.gutter = gutter;
+            opts.flatten.stretch.view_dir = view_dir.map(nalgebra::Vector3::from);
+            opts.flatten.stretch.k = k;
+            opts.flatten.stretch.alpha = alpha;
+            let (out_mesh, rep) = scantex::atlas::parameterize(&input, &opts);
+            let picture = scantex::atlas::layout_picture(&out_mesh, size.min(2048));
+            let png = scantex::io::image::encode_png(&image::DynamicImage::ImageRgb8(picture))?;
+            scantex::io::write_mesh(&out, &out_mesh, None)?;
+            let stem = out
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            scantex::io::write_atomic(
+                &out.with_file_name(format!("{stem}_layout.png")),
+                &png.bytes,
+            )?;
+            let json = serde_json::to_string_pretty(&rep).expect("report serialises");
+            if let Some(p) = report {
+                scantex::io::write_atomic(&p, json.as_bytes())?;
+            }
+            println!("{json}");
             Ok(ExitCode::SUCCESS)
         }
         Command::Sample {

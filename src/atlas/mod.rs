@@ -6,10 +6,12 @@
 //! mesh as one chart when its stretch allows.
 
 pub mod optimize;
+pub mod pack;
 pub mod param;
 pub mod segment;
 
 use crate::mesh::Mesh;
+use nalgebra::Vector2;
 use param::ChartMap;
 use segment::{is_disk, split, Adjacency, SegmentOptions};
 
@@ -83,6 +85,139 @@ fn flatten_chart(
         }
     }
     out
+}
+
+/// Options for [`parameterize`].
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct AtlasOptions {
+    /// Charts and stretch.
+    pub flatten: FlattenOptions,
+    /// Atlas size and gutter.
+    pub pack: pack::PackOptions,
+}
+
+/// What [`parameterize`] measured.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct AtlasReport {
+    /// Number of charts.
+    pub charts: usize,
+    /// Stretch of the whole atlas (Sander's L2 and L-infinity, 2D area normalised to 3D area),
+    /// with flipped and zero-area UV triangles.
+    pub stretch: param::Stretch,
+    /// Length of edges where two charts meet, over the length of all edges.
+    pub seam_ratio: f64,
+    /// Texels covered by charts over all texels.
+    pub utilisation: f64,
+    /// Texels covered by more than one chart (0 unless something is wrong).
+    pub overlapping_texels: usize,
+    /// Texels per unit of 3D length.
+    pub texels_per_unit: f64,
+    /// Seconds spent segmenting, flattening and minimising stretch.
+    pub seconds_charts: f64,
+    /// Seconds spent packing.
+    pub seconds_pack: f64,
+    /// Seconds spent measuring (rasterising the layout).
+    pub seconds_measure: f64,
+    /// Chart of each face (not serialised).
+    #[serde(skip)]
+    pub face_chart: Vec<u32>,
+}
+
+/// Stage 1: gives `mesh` texture coordinates in one atlas. The mesh is welded first (vertices
+/// split along old UV seams are one surface again); its faces keep their order.
+pub fn parameterize(mesh: &Mesh, opts: &AtlasOptions) -> (Mesh, AtlasReport) {
+    let t0 = std::time::Instant::now();
+    let mut m = mesh.clone();
+    m.uv = None;
+    m.texture = None;
+    m.weld();
+    let maps = flatten_all(&m, &opts.flatten);
+    let t1 = std::time::Instant::now();
+    let packed = pack::pack(&m, &maps, &opts.pack);
+    let t2 = std::time::Instant::now();
+    let stretch = param::stretch(&m, &maps);
+    let cov = pack::coverage(&packed.uv, &packed.face_chart, opts.pack.size);
+    let covered = cov.iter().filter(|&&c| c > 0).count();
+    let overlapping = cov.iter().filter(|&&c| c > 1).count();
+    let adj = Adjacency::new(&m);
+    let (mut seam, mut total) = (0.0, 0.0);
+    for (f, face) in m.faces.iter().enumerate() {
+        for k in 0..3 {
+            let len = (m.positions[face[(k + 1) % 3].idx()] - m.positions[face[k].idx()]).norm();
+            match adj.neighbours[f][k] {
+                // Interior edges are seen from both sides: count each once.
+                Some(g) if (g as usize) > f => {
+                    total += len;
+                    if packed.face_chart[g as usize] != packed.face_chart[f] {
+                        seam += len;
+                    }
+                }
+                Some(_) => {}
+                None => total += len,
+            }
+        }
+    }
+    let report = AtlasReport {
+        charts: maps.len(),
+        stretch,
+        seam_ratio: if total > 0.0 { seam / total } else { 0.0 },
+        utilisation: covered as f64 / cov.len() as f64,
+        overlapping_texels: overlapping,
+        texels_per_unit: packed.texels_per_unit,
+        seconds_charts: (t1 - t0).as_secs_f64(),
+        seconds_pack: (t2 - t1).as_secs_f64(),
+        seconds_measure: t2.elapsed().as_secs_f64(),
+        face_chart: packed.face_chart.clone(),
+    };
+    m.uv = Some(packed.uv);
+    (m, report)
+}
+
+/// A picture of the layout: each UV triangle filled with its L2 stretch (green 1, yellow 1.5,
+/// red 2 or more), on dark grey. `size` pixels square.
+pub fn layout_picture(mesh: &Mesh, size: u32) -> image::RgbImage {
+    let mut img = image::RgbImage::from_pixel(size, size, image::Rgb([40, 40, 40]));
+    let Some(uv) = &mesh.uv else { return img };
+    let n = size as f64;
+    // Per-triangle stretch at the atlas's common scale, normalised over the whole atlas.
+    let (mut a2, mut a3) = (0.0, 0.0);
+    for (f, t) in uv.faces.iter().enumerate() {
+        let q = t.map(|i| uv.coords[i as usize].cast::<f64>());
+        a2 += 0.5 * (q[1] - q[0]).perp(&(q[2] - q[0])).abs();
+        a3 += 0.5 * mesh.face_normal_area(crate::mesh::FaceId(f as u32)).norm();
+    }
+    let k = (a2 / a3.max(1e-300)).sqrt();
+    for (f, t) in uv.faces.iter().enumerate() {
+        let q = t.map(|i| uv.coords[i as usize].cast::<f64>());
+        let (l2, _, _) = param::triangle_stretch(
+            mesh.triangle(crate::mesh::FaceId(f as u32)),
+            q.map(|v| v / k),
+        );
+        let x = ((l2 - 1.0) / 1.0).clamp(0.0, 1.0) as f32;
+        let colour = image::Rgb([
+            (255.0 * (2.0 * x).min(1.0)) as u8,
+            (255.0 * (2.0 - 2.0 * x).min(1.0)) as u8,
+            40,
+        ]);
+        let p = q.map(|v| Vector2::new(v.x * n, (1.0 - v.y) * n));
+        let lo = p[0].inf(&p[1]).inf(&p[2]);
+        let hi = p[0].sup(&p[1]).sup(&p[2]);
+        let area = (p[1] - p[0]).perp(&(p[2] - p[0]));
+        if area == 0.0 {
+            continue;
+        }
+        for y in (lo.y.floor().max(0.0) as u32)..=(hi.y.ceil().min(n - 1.0).max(0.0) as u32) {
+            for x in (lo.x.floor().max(0.0) as u32)..=(hi.x.ceil().min(n - 1.0).max(0.0) as u32) {
+                let c = Vector2::new(x as f64 + 0.5, y as f64 + 0.5);
+                let inside =
+                    (0..3).all(|j| (p[(j + 1) % 3] - c).perp(&(p[(j + 2) % 3] - c)) / area >= 0.0);
+                if inside {
+                    img.put_pixel(x, y, colour);
+                }
+            }
+        }
+    }
+    img
 }
 
 #[cfg(test)]
@@ -199,6 +334,119 @@ mod view_weight_tests {
                 2.0 * a2 / (m * m) >= 0.1f64.min(hb3) * 0.999 - 1e-12,
                 "h/b below alpha"
             );
+        }
+    }
+}
+
+#[cfg(test)]
+mod pack_tests {
+    use super::*;
+
+    /// The chart covering each texel centre (first found), by rasterising the UV triangles.
+    fn texel_owner(uv: &crate::mesh::UvMap, face_chart: &[u32], size: u32) -> Vec<Option<u32>> {
+        let mut owner = vec![None; (size * size) as usize];
+        let n = size as f64;
+        for (f, t) in uv.faces.iter().enumerate() {
+            let q = t.map(|i| uv.coords[i as usize].cast::<f64>() * n);
+            let area = (q[1] - q[0]).perp(&(q[2] - q[0]));
+            if area == 0.0 {
+                continue;
+            }
+            let lo = q[0].inf(&q[1]).inf(&q[2]);
+            let hi = q[0].sup(&q[1]).sup(&q[2]);
+            for y in (lo.y.floor().max(0.0) as u32)..(hi.y.ceil().min(n) as u32) {
+                for x in (lo.x.floor().max(0.0) as u32)..(hi.x.ceil().min(n) as u32) {
+                    let c = Vector2::new(x as f64 + 0.5, y as f64 + 0.5);
+                    if (0..3)
+                        .all(|k| (q[(k + 1) % 3] - c).perp(&(q[(k + 2) % 3] - c)) / area >= 0.0)
+                    {
+                        owner[(y * size + x) as usize].get_or_insert(face_chart[f]);
+                    }
+                }
+            }
+        }
+        owner
+    }
+
+    /// Sphere-like, genus-1, two-component, holed and non-manifold meshes all get UVs in [0, 1]
+    /// for every face, no texel is covered by two charts, charts keep the gutter apart, and the
+    /// result is deterministic.
+    #[test]
+    fn packed_atlases_never_overlap_and_cover_every_face() {
+        let (torus, _) = crate::sample::dented_torus(60, 24, (8, 8));
+        let mut two = torus.clone();
+        let n = two.positions.len() as u32;
+        two.positions.extend(
+            torus
+                .positions
+                .iter()
+                .map(|p| p + nalgebra::Vector3::new(4.0, 0.0, 0.0)),
+        );
+        two.faces.extend(
+            torus
+                .faces
+                .iter()
+                .map(|f| f.map(|v| crate::mesh::VertexId(v.0 + n))),
+        );
+        let mut holed = torus.clone();
+        holed.faces = holed
+            .faces
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| i % 13 != 0)
+            .map(|(_, f)| *f)
+            .collect();
+        let mut fins = torus.clone();
+        for e in 0..4 {
+            let f = fins.faces[e * 101];
+            fins.positions.push(fins.positions[f[0].idx()] * 1.3);
+            fins.faces.push([
+                f[0],
+                f[1],
+                crate::mesh::VertexId(fins.positions.len() as u32 - 1),
+            ]);
+        }
+        for mesh in [torus, two, holed, fins] {
+            let opts = AtlasOptions {
+                pack: pack::PackOptions {
+                    size: 512,
+                    gutter: 4,
+                },
+                ..Default::default()
+            };
+            let (m, r) = parameterize(&mesh, &opts);
+            assert_eq!(r.overlapping_texels, 0, "{r:?}");
+            assert_eq!((r.stretch.flipped, r.stretch.zero_area), (0, 0));
+            let uv = m.uv.as_ref().unwrap();
+            assert_eq!(uv.faces.len(), m.num_faces());
+            assert!(uv
+                .coords
+                .iter()
+                .all(|c| (0.0..=1.0).contains(&c.x) && (0.0..=1.0).contains(&c.y)));
+            // Gutter: no texel within 3 texels (Chebyshev) of a chart belongs to another chart.
+            let owner = texel_owner(uv, &r.face_chart, 512);
+            for y in 0..512i64 {
+                for x in 0..512i64 {
+                    let Some(a) = owner[(y * 512 + x) as usize] else {
+                        continue;
+                    };
+                    for dy in -3..=3i64 {
+                        for dx in -3..=3i64 {
+                            let (u, v) = (x + dx, y + dy);
+                            if (0..512).contains(&u) && (0..512).contains(&v) {
+                                let b = owner[(v * 512 + u) as usize];
+                                assert!(
+                                    b.is_none() || b == Some(a),
+                                    "charts {a} and {b:?} closer than the gutter"
+                                );
+                            }
+                        }
+                    }
+                }
+            }
+            assert!(r.utilisation > 0.1, "{r:?}");
+            let (m2, _) = parameterize(&mesh, &opts);
+            assert!(m2.uv == m.uv, "deterministic");
         }
     }
 }
