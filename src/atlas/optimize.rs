@@ -175,6 +175,31 @@ pub fn optimize(mesh: &Mesh, map: &mut ChartMap, opts: &StretchOptions) -> f64 {
     let mut sa: f64 = term.iter().map(|t| t.1).sum();
     let swa: f64 = faces.iter().map(|f| f.wa).sum();
     // Candidate energy after moving vertex v to `p`, with the new per-face terms.
+    // Whether moving v to p makes one of v's boundary edges cross another boundary edge.
+    // Checked only for moves about to be accepted: it is the costly test (linear in the
+    // boundary length), and the gradient probes move too little to matter.
+    let crosses = |v: usize, p: Vector2<f64>, uv: &[Vector2<f64>]| -> bool {
+        for &ei in &on_boundary[v] {
+            let (a, b) = boundary[ei];
+            let (pa, pb) = (
+                if a == v { p } else { uv[a] },
+                if b == v { p } else { uv[b] },
+            );
+            for (j, &(c, d)) in boundary.iter().enumerate() {
+                if j == ei || c == a || c == b || d == a || d == b {
+                    continue;
+                }
+                let (pc, pd) = (
+                    if c == v { p } else { uv[c] },
+                    if d == v { p } else { uv[d] },
+                );
+                if segments_cross(pa, pb, pc, pd) {
+                    return true;
+                }
+            }
+        }
+        false
+    };
     let try_move = |v: usize,
                     p: Vector2<f64>,
                     uv: &[Vector2<f64>],
@@ -191,25 +216,6 @@ pub fn optimize(mesh: &Mesh, map: &mut ChartMap, opts: &StretchOptions) -> f64 {
             dl += t.0 - term[fi].0;
             da += t.1 - term[fi].1;
             new_terms.push(t);
-        }
-        for &ei in &on_boundary[v] {
-            let (a, b) = boundary[ei];
-            let (pa, pb) = (
-                if a == v { p } else { uv[a] },
-                if b == v { p } else { uv[b] },
-            );
-            for (j, &(c, d)) in boundary.iter().enumerate() {
-                if j == ei || c == a || c == b || d == a || d == b {
-                    continue;
-                }
-                let (pc, pd) = (
-                    if c == v { p } else { uv[c] },
-                    if d == v { p } else { uv[d] },
-                );
-                if segments_cross(pa, pb, pc, pd) {
-                    return None;
-                }
-            }
         }
         let (nl, na) = (sl + dl, sa + da);
         Some((nl * na, nl, na, new_terms))
@@ -256,7 +262,7 @@ pub fn optimize(mesh: &Mesh, map: &mut ChartMap, opts: &StretchOptions) -> f64 {
             let mut step = 0.5 * scale;
             for _ in 0..10 {
                 if let Some((e, nl, na, nt)) = try_move(v, uv[v] + dir * step, uv, &term, sl, sa) {
-                    if e < energy {
+                    if e < energy && !crosses(v, uv[v] + dir * step, uv) {
                         uv[v] += dir * step;
                         for (&fi, t) in incident[v].iter().zip(nt) {
                             term[fi] = t;
