@@ -200,22 +200,7 @@ pub fn layout_picture(mesh: &Mesh, size: u32) -> image::RgbImage {
             40,
         ]);
         let p = q.map(|v| Vector2::new(v.x * n, (1.0 - v.y) * n));
-        let lo = p[0].inf(&p[1]).inf(&p[2]);
-        let hi = p[0].sup(&p[1]).sup(&p[2]);
-        let area = (p[1] - p[0]).perp(&(p[2] - p[0]));
-        if area == 0.0 {
-            continue;
-        }
-        for y in (lo.y.floor().max(0.0) as u32)..=(hi.y.ceil().min(n - 1.0).max(0.0) as u32) {
-            for x in (lo.x.floor().max(0.0) as u32)..=(hi.x.ceil().min(n - 1.0).max(0.0) as u32) {
-                let c = Vector2::new(x as f64 + 0.5, y as f64 + 0.5);
-                let inside =
-                    (0..3).all(|j| (p[(j + 1) % 3] - c).perp(&(p[(j + 2) % 3] - c)) / area >= 0.0);
-                if inside {
-                    img.put_pixel(x, y, colour);
-                }
-            }
-        }
+        pack::raster_triangle(p, size, size, |x, y| img.put_pixel(x, y, colour));
     }
     img
 }
@@ -345,25 +330,11 @@ mod pack_tests {
     /// The chart covering each texel centre (first found), by rasterising the UV triangles.
     fn texel_owner(uv: &crate::mesh::UvMap, face_chart: &[u32], size: u32) -> Vec<Option<u32>> {
         let mut owner = vec![None; (size * size) as usize];
-        let n = size as f64;
         for (f, t) in uv.faces.iter().enumerate() {
-            let q = t.map(|i| uv.coords[i as usize].cast::<f64>() * n);
-            let area = (q[1] - q[0]).perp(&(q[2] - q[0]));
-            if area == 0.0 {
-                continue;
-            }
-            let lo = q[0].inf(&q[1]).inf(&q[2]);
-            let hi = q[0].sup(&q[1]).sup(&q[2]);
-            for y in (lo.y.floor().max(0.0) as u32)..(hi.y.ceil().min(n) as u32) {
-                for x in (lo.x.floor().max(0.0) as u32)..(hi.x.ceil().min(n) as u32) {
-                    let c = Vector2::new(x as f64 + 0.5, y as f64 + 0.5);
-                    if (0..3)
-                        .all(|k| (q[(k + 1) % 3] - c).perp(&(q[(k + 2) % 3] - c)) / area >= 0.0)
-                    {
-                        owner[(y * size + x) as usize].get_or_insert(face_chart[f]);
-                    }
-                }
-            }
+            let q = t.map(|i| uv.coords[i as usize].cast::<f64>() * size as f64);
+            pack::raster_triangle(q, size, size, |x, y| {
+                owner[(y * size + x) as usize].get_or_insert(face_chart[f]);
+            });
         }
         owner
     }

@@ -198,6 +198,40 @@ pub fn pack(mesh: &Mesh, maps: &[ChartMap], opts: &PackOptions) -> Packed {
     }
 }
 
+/// Calls `visit(x, y)` for every texel centre `(x + 0.5, y + 0.5)` of a `width` x `height`
+/// grid inside the triangle `q` (texel units, either orientation, edges inclusive).
+pub fn raster_triangle(
+    q: [Vector2<f64>; 3],
+    width: u32,
+    height: u32,
+    mut visit: impl FnMut(u32, u32),
+) {
+    let area = (q[1] - q[0]).perp(&(q[2] - q[0]));
+    if area == 0.0 || width == 0 || height == 0 {
+        return;
+    }
+    let lo = q[0].inf(&q[1]).inf(&q[2]);
+    let hi = q[0].sup(&q[1]).sup(&q[2]);
+    // Texel centres inside the bounding box, clipped to the grid; empty if it misses the grid.
+    let span = |a: f64, b: f64, n: u32| {
+        let first = (a - 0.5).ceil().max(0.0);
+        let last = (b - 0.5).floor().min(n as f64 - 1.0);
+        (first <= last).then_some((first as u32, last as u32))
+    };
+    let (Some((x0, x1)), Some((y0, y1))) = (span(lo.x, hi.x, width), span(lo.y, hi.y, height))
+    else {
+        return;
+    };
+    for y in y0..=y1 {
+        for x in x0..=x1 {
+            let c = Vector2::new(x as f64 + 0.5, y as f64 + 0.5);
+            if (0..3).all(|k| (q[(k + 1) % 3] - c).perp(&(q[(k + 2) % 3] - c)) / area >= 0.0) {
+                visit(x, y);
+            }
+        }
+    }
+}
+
 /// Rasterises the UV triangles at `size` x `size` (texel centres) and returns, per texel, how
 /// many charts cover it (0, 1, or more if charts overlap).
 pub fn coverage(uv: &UvMap, face_chart: &[u32], size: u32) -> Vec<u8> {
@@ -206,35 +240,13 @@ pub fn coverage(uv: &UvMap, face_chart: &[u32], size: u32) -> Vec<u8> {
     let n = size as f64;
     for (f, t) in uv.faces.iter().enumerate() {
         let q = t.map(|i| uv.coords[i as usize].cast::<f64>() * n);
-        let lo = q[0].inf(&q[1]).inf(&q[2]);
-        let hi = q[0].sup(&q[1]).sup(&q[2]);
-        let area = (q[1] - q[0]).perp(&(q[2] - q[0]));
-        if area == 0.0 {
-            continue;
-        }
-        let (x0, x1) = (
-            (lo.x - 0.5).floor().max(0.0) as u32,
-            ((hi.x - 0.5).ceil().max(0.0) as u32).min(size - 1),
-        );
-        let (y0, y1) = (
-            (lo.y - 0.5).floor().max(0.0) as u32,
-            ((hi.y - 0.5).ceil().max(0.0) as u32).min(size - 1),
-        );
-        for y in y0..=y1 {
-            for x in x0..=x1 {
-                let p = Vector2::new(x as f64 + 0.5, y as f64 + 0.5);
-                let w: [f64; 3] = std::array::from_fn(|k| {
-                    (q[(k + 1) % 3] - p).perp(&(q[(k + 2) % 3] - p)) / area
-                });
-                if w.iter().all(|&v| v >= 0.0) {
-                    let i = (y * size + x) as usize;
-                    if owner[i] != face_chart[f] {
-                        count[i] = count[i].saturating_add(1);
-                        owner[i] = face_chart[f];
-                    }
-                }
+        raster_triangle(q, size, size, |x, y| {
+            let i = (y * size + x) as usize;
+            if owner[i] != face_chart[f] {
+                count[i] = count[i].saturating_add(1);
+                owner[i] = face_chart[f];
             }
-        }
+        });
     }
     count
 }
