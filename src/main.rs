@@ -324,8 +324,13 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
                 print!("{report}");
             }
             // Missing or broken photographs make the scene unusable for texturing: say so in
-            // the exit code so batch jobs stop here.
-            match scene.check_photos() {
+            // the exit code so batch jobs stop here. The report already probed every photo;
+            // probe again only to name the first bad one.
+            let bad = report
+                .colmap
+                .as_ref()
+                .is_some_and(|c| c.photos_missing_count + c.photos_bad_count > 0);
+            match if bad { scene.check_photos() } else { Ok(()) } {
                 Ok(()) => Ok(ExitCode::SUCCESS),
                 Err(e) => {
                     eprintln!("scantex: error: {e}");

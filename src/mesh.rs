@@ -100,6 +100,11 @@ impl Mesh {
         (b - a).cross(&(c - a))
     }
 
+    /// Area of face `f`.
+    pub fn face_area(&self, f: FaceId) -> f64 {
+        0.5 * self.face_normal_area(f).norm()
+    }
+
     /// Checks what every reader must guarantee and drops degenerate faces: at least one face,
     /// finite positions, indices in range. `path` names the file in errors.
     pub fn validate(&mut self, path: &Path) -> Result<LoadReport> {

@@ -134,11 +134,6 @@ impl<'a> RayMesh<'a> {
         }
     }
 
-    /// The mesh.
-    pub fn mesh(&self) -> &Mesh {
-        self.mesh
-    }
-
     /// Nearest hit of the ray `o + t d` (d unit), if any.
     pub fn intersect(&self, o: &Point3<f64>, d: &Vector3<f64>) -> Option<Hit> {
         let mut best: Option<Hit> = None;

@@ -62,6 +62,7 @@ fn sample_truth_rerendered_reproduces_the_photos() {
         &s,
         &s.join("truth/lighting.json"),
     ) {
+        eprintln!("{name}: {psnr:.2} dB");
         assert!(psnr >= 40.0, "{name}: {psnr:.2} dB");
     }
 }

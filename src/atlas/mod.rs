@@ -9,6 +9,8 @@ pub mod optimize;
 pub mod pack;
 pub mod param;
 pub mod segment;
+#[cfg(test)]
+mod test_meshes;
 
 use crate::mesh::Mesh;
 use nalgebra::Vector2;
@@ -236,8 +238,8 @@ pub fn layout_picture(mesh: &Mesh, size: u32) -> image::RgbImage {
     let (mut a2, mut a3) = (0.0, 0.0);
     for (f, t) in uv.faces.iter().enumerate() {
         let q = t.map(|i| uv.coords[i as usize].cast::<f64>());
-        a2 += 0.5 * (q[1] - q[0]).perp(&(q[2] - q[0])).abs();
-        a3 += 0.5 * mesh.face_normal_area(crate::mesh::FaceId(f as u32)).norm();
+        a2 += param::uv_area(q).abs();
+        a3 += mesh.face_area(crate::mesh::FaceId(f as u32));
     }
     let k = (a2 / a3.max(1e-300)).sqrt();
     for (f, t) in uv.faces.iter().enumerate() {
@@ -260,7 +262,11 @@ pub fn layout_picture(mesh: &Mesh, size: u32) -> image::RgbImage {
 
 #[cfg(test)]
 mod tests {
+    use super::test_meshes::{
+        faces_where, polar_grid, texel_density, two_copies, with_fins, with_holes,
+    };
     use super::*;
+    use nalgebra::{Point3, Vector3};
 
     #[test]
     fn flatten_all_bounds_every_charts_stretch_without_flips() {
@@ -289,60 +295,32 @@ mod tests {
         assert!(maps.len() <= 16, "{} charts", maps.len());
         assert_eq!(flatten_all(&torus, &opts), maps, "deterministic");
     }
-}
 
-#[cfg(test)]
-mod view_weight_tests {
-    use super::*;
-    use crate::mesh::FaceId;
-
-    /// Looking down on a cap (V = -z), triangles near its top get more texture area per
-    /// unit 3D area than triangles at the rim, and the barrier keeps every triangle's h/b at or
-    /// above alpha where the 3D triangle allows it.
+    /// Looking down on a cap (V = -z), triangles near its top get more texture area per unit
+    /// 3D area than triangles at the rim, and the barrier keeps every triangle's h/b at or above
+    /// alpha where the 3D triangle allows it.
     #[test]
     fn view_weight_moves_texels_towards_the_important_view() {
         let (torus, _) = crate::sample::dented_torus(120, 48, (8, 8));
-        // The top of the tube (phi around 90 degrees) over a quarter of the ring: a cap-like
-        // disk whose normals run from +z (top) to sideways (rim).
-        let faces: Vec<FaceId> = (0..torus.num_faces() as u32)
-            .map(FaceId)
-            .filter(|f| {
-                let c: nalgebra::Vector3<f64> = torus
-                    .triangle(*f)
-                    .iter()
-                    .map(|p| p.coords)
-                    .sum::<nalgebra::Vector3<f64>>()
-                    / 3.0;
-                c.z > 0.15 && c.y < 0.0 && c.x < 0.0 && c.x < 0.3 * c.y && c.y < 0.3 * c.x
-            })
-            .collect();
-        let area_ratio = |map: &param::ChartMap| {
-            let (mut top, mut rim) = ((0.0, 0.0), (0.0, 0.0));
-            for (t, f) in map.faces.iter().zip(&map.face_ids) {
-                let q = t.map(|i| map.uv[i as usize]);
-                let a2 = 0.5 * (q[1] - q[0]).perp(&(q[2] - q[0]));
-                let n = torus.face_normal_area(*f);
-                let a3 = 0.5 * n.norm();
-                let nz = n.z / n.norm();
-                if nz > 0.9 {
-                    top = (top.0 + a2, top.1 + a3);
-                } else if nz < 0.7 {
-                    rim = (rim.0 + a2, rim.1 + a3);
-                }
-            }
-            (top.0 / top.1) / (rim.0 / rim.1)
+        // The top of the tube over a quarter of the ring, away from the dent: a cap-like disk
+        // whose normals run from +z (top) to sideways (rim).
+        let faces = faces_where(&torus, |c| {
+            c.z > 0.15 && c.x < 0.3 * c.y && c.y < 0.3 * c.x && c.x < 0.0
+        });
+        let ratio = |map: &param::ChartMap| {
+            texel_density(&torus, map, |nz| nz > 0.9) / texel_density(&torus, map, |nz| nz < 0.7)
         };
         let mut plain = param::flatten(&torus, &faces);
         let mut weighted = plain.clone();
         optimize::optimize(&torus, &mut plain, &optimize::StretchOptions::default());
         let opts = optimize::StretchOptions {
-            view_dir: Some(-nalgebra::Vector3::z()),
+            view_dir: Some(-Vector3::z()),
             k: 1.2,
             alpha: 0.1,
             ..Default::default()
         };
         optimize::optimize(&torus, &mut weighted, &opts);
-        let (rp, rw) = (area_ratio(&plain), area_ratio(&weighted));
+        let (rp, rw) = (ratio(&plain), ratio(&weighted));
         assert!(
             rw > 1.5 * rp && rw > 1.3,
             "texel density top/rim: plain {rp:.3}, weighted {rw:.3}"
@@ -350,35 +328,14 @@ mod view_weight_tests {
         let s = param::stretch(&torus, std::slice::from_ref(&weighted));
         assert_eq!((s.flipped, s.zero_area), (0, 0));
         for (t, f) in weighted.faces.iter().zip(&weighted.face_ids) {
-            let q = t.map(|i| weighted.uv[i as usize]);
-            let a2 = 0.5 * (q[1] - q[0]).perp(&(q[2] - q[0]));
-            let m = [
-                (q[1] - q[0]).norm(),
-                (q[2] - q[1]).norm(),
-                (q[0] - q[2]).norm(),
-            ]
-            .into_iter()
-            .fold(0.0, f64::max);
-            let p = torus.triangle(*f);
-            let m3 = [
-                (p[1] - p[0]).norm(),
-                (p[2] - p[1]).norm(),
-                (p[0] - p[2]).norm(),
-            ]
-            .into_iter()
-            .fold(0.0, f64::max);
-            let hb3 = 2.0 * 0.5 * torus.face_normal_area(*f).norm() / (m3 * m3);
+            let hb2 = param::height_base_2d(t.map(|i| weighted.uv[i as usize]));
+            let hb3 = param::height_base_3d(torus.triangle(*f));
             assert!(
-                2.0 * a2 / (m * m) >= 0.1f64.min(hb3) * 0.999 - 1e-12,
-                "h/b below alpha"
+                hb2 >= 0.1f64.min(hb3) * 0.999 - 1e-12,
+                "h/b {hb2} below alpha"
             );
         }
     }
-}
-
-#[cfg(test)]
-mod pack_tests {
-    use super::*;
 
     /// The chart covering each texel centre (first found), by rasterising the UV triangles.
     fn texel_owner(uv: &crate::mesh::UvMap, face_chart: &[u32], size: u32) -> Vec<Option<u32>> {
@@ -392,52 +349,26 @@ mod pack_tests {
         owner
     }
 
-    /// Sphere-like, genus-1, two-component, holed and non-manifold meshes all get UVs in [0, 1]
-    /// for every face, no texel is covered by two charts, charts keep the gutter apart, and the
-    /// result is deterministic.
+    /// Genus-1, two-component, holed and non-manifold meshes all get UVs in [0, 1] for every
+    /// face, no texel is covered by two charts, charts keep the gutter apart, and the result is
+    /// deterministic.
     #[test]
     fn packed_atlases_never_overlap_and_cover_every_face() {
         let (torus, _) = crate::sample::dented_torus(60, 24, (8, 8));
-        let mut two = torus.clone();
-        let n = two.positions.len() as u32;
-        two.positions.extend(
-            torus
-                .positions
-                .iter()
-                .map(|p| p + nalgebra::Vector3::new(4.0, 0.0, 0.0)),
-        );
-        two.faces.extend(
-            torus
-                .faces
-                .iter()
-                .map(|f| f.map(|v| crate::mesh::VertexId(v.0 + n))),
-        );
-        let mut holed = torus.clone();
-        holed.faces = holed
-            .faces
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| i % 13 != 0)
-            .map(|(_, f)| *f)
-            .collect();
-        let mut fins = torus.clone();
-        for e in 0..4 {
-            let f = fins.faces[e * 101];
-            fins.positions.push(fins.positions[f[0].idx()] * 1.3);
-            fins.faces.push([
-                f[0],
-                f[1],
-                crate::mesh::VertexId(fins.positions.len() as u32 - 1),
-            ]);
-        }
-        for mesh in [torus, two, holed, fins] {
-            let opts = AtlasOptions {
-                pack: pack::PackOptions {
-                    size: 512,
-                    gutter: 4,
-                },
-                ..Default::default()
-            };
+        let meshes = [
+            two_copies(&torus, Vector3::new(4.0, 0.0, 0.0)),
+            with_holes(&torus, 13),
+            with_fins(&torus, 4, 101, 1.3),
+            torus,
+        ];
+        let opts = AtlasOptions {
+            pack: pack::PackOptions {
+                size: 512,
+                gutter: 4,
+            },
+            ..Default::default()
+        };
+        for mesh in meshes {
             let (m, r) = parameterize(&mesh, &opts);
             assert_eq!(r.overlapping_texels, 0, "{r:?}");
             assert_eq!((r.stretch.flipped, r.stretch.zero_area), (0, 0));
@@ -454,16 +385,14 @@ mod pack_tests {
                     let Some(a) = owner[(y * 512 + x) as usize] else {
                         continue;
                     };
-                    for dy in -3..=3i64 {
-                        for dx in -3..=3i64 {
-                            let (u, v) = (x + dx, y + dy);
-                            if (0..512).contains(&u) && (0..512).contains(&v) {
-                                let b = owner[(v * 512 + u) as usize];
-                                assert!(
-                                    b.is_none() || b == Some(a),
-                                    "charts {a} and {b:?} closer than the gutter"
-                                );
-                            }
+                    for (dx, dy) in (-3..=3i64).flat_map(|dx| (-3..=3i64).map(move |dy| (dx, dy))) {
+                        let (u, v) = (x + dx, y + dy);
+                        if (0..512).contains(&u) && (0..512).contains(&v) {
+                            let b = owner[(v * 512 + u) as usize];
+                            assert!(
+                                b.is_none() || b == Some(a),
+                                "charts {a} and {b:?} closer than the gutter"
+                            );
                         }
                     }
                 }
@@ -473,13 +402,6 @@ mod pack_tests {
             assert!(m2.uv == m.uv, "deterministic");
         }
     }
-}
-
-#[cfg(test)]
-mod hemisphere_tests {
-    use super::*;
-    use crate::mesh::{FaceId, VertexId};
-    use nalgebra::Point3;
 
     /// A hemisphere (latitude-longitude grid, pole at +z) with V on its pole (looking down,
     /// V = -z) and k = 1.2 stays one chart without flips, and triangles near the pole get more
@@ -488,70 +410,26 @@ mod hemisphere_tests {
     /// docs/decisions.md, so this asserts only what holds.
     #[test]
     fn hemisphere_with_view_on_its_pole_is_one_chart_with_texels_at_the_pole() {
-        let (n_lon, n_lat) = (48usize, 16usize);
-        let mut positions = vec![Point3::new(0.0, 0.0, 1.0)];
-        for i in 1..=n_lat {
-            let lat = std::f64::consts::FRAC_PI_2 * i as f64 / n_lat as f64;
-            for j in 0..n_lon {
-                let lon = std::f64::consts::TAU * j as f64 / n_lon as f64;
-                positions.push(Point3::new(
-                    lat.sin() * lon.cos(),
-                    lat.sin() * lon.sin(),
-                    lat.cos(),
-                ));
-            }
-        }
-        let id = |i: usize, j: usize| {
-            VertexId(if i == 0 {
-                0
-            } else {
-                (1 + (i - 1) * n_lon + j % n_lon) as u32
-            })
-        };
-        let mut faces = Vec::new();
-        for j in 0..n_lon {
-            faces.push([id(0, 0), id(1, j), id(1, j + 1)]);
-        }
-        for i in 1..n_lat {
-            for j in 0..n_lon {
-                faces.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
-                faces.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
-            }
-        }
-        let mesh = Mesh {
-            positions,
-            faces,
-            ..Default::default()
-        };
+        let (rings, sectors) = (16, 48);
+        let mesh = polar_grid(rings, sectors, |i, j| {
+            let lat = std::f64::consts::FRAC_PI_2 * i as f64 / rings as f64;
+            let lon = std::f64::consts::TAU * j as f64 / sectors as f64;
+            Point3::new(lat.sin() * lon.cos(), lat.sin() * lon.sin(), lat.cos())
+        });
         let mut opts = FlattenOptions::default();
-        opts.stretch.view_dir = Some(-nalgebra::Vector3::z());
+        opts.stretch.view_dir = Some(-Vector3::z());
         opts.stretch.k = 1.2;
         let maps = flatten_all(&mesh, &opts);
         assert_eq!(maps.len(), 1, "the hemisphere is one chart");
         let s = param::stretch(&mesh, &maps);
         assert_eq!((s.flipped, s.zero_area), (0, 0));
-        let m = &maps[0];
-        let (mut pole, mut rim) = ((0.0, 0.0), (0.0, 0.0));
-        for (t, f) in m.faces.iter().zip(&m.face_ids) {
-            let q = t.map(|i| m.uv[i as usize]);
-            let a2 = 0.5 * (q[1] - q[0]).perp(&(q[2] - q[0]));
-            let n = mesh.face_normal_area(*f);
-            let nz = n.z / n.norm();
-            let a3 = 0.5 * n.norm();
-            if nz > 0.9 {
-                pole = (pole.0 + a2, pole.1 + a3);
-            } else if nz < 0.2 {
-                rim = (rim.0 + a2, rim.1 + a3);
-            }
-        }
-        let ratio = (pole.0 / pole.1) / (rim.0 / rim.1);
+        let ratio = texel_density(&mesh, &maps[0], |nz| nz > 0.9)
+            / texel_density(&mesh, &maps[0], |nz| nz < 0.2);
         assert!(
             ratio >= 1.15,
             "texture area per 3D area, pole / rim = {ratio:.3}"
         );
-        // Without the view weight the same map spreads texels evenly (ratio near 1).
-        let even = flatten_all(&mesh, &FlattenOptions::default());
-        assert_eq!(even.len(), 1);
-        let _ = FaceId(0);
+        // Without the view weight it stays one chart too.
+        assert_eq!(flatten_all(&mesh, &FlattenOptions::default()).len(), 1);
     }
 }

@@ -11,7 +11,7 @@
 //! incident triangle flips, degenerates or breaks the barrier, or if a boundary edge would cross
 //! another, so the map stays one-to-one throughout.
 
-use super::param::ChartMap;
+use super::param::{height_base_2d, height_base_3d, uv_area, ChartMap};
 use crate::mesh::Mesh;
 use nalgebra::{Point3, Vector2, Vector3};
 use std::collections::HashMap;
@@ -44,16 +44,6 @@ impl Default for StretchOptions {
     }
 }
 
-/// Smallest height/base ratio of a triangle: `2 A / (longest edge)^2`.
-fn height_base(a: f64, e: [f64; 3]) -> f64 {
-    let m = e.iter().cloned().fold(0.0, f64::max);
-    if m > 0.0 {
-        2.0 * a / (m * m)
-    } else {
-        0.0
-    }
-}
-
 struct Face {
     v: [usize; 3],
     p: [Point3<f64>; 3],
@@ -68,16 +58,11 @@ type Move = (f64, f64, f64, Vec<(f64, f64)>);
 
 /// The stretch term `L2(T)^2 w A3` and the UV area of a face, or `None` if the barrier is hit.
 fn terms(f: &Face, q: [Vector2<f64>; 3]) -> Option<(f64, f64)> {
-    let a2 = 0.5 * (q[1] - q[0]).perp(&(q[2] - q[0]));
+    let a2 = uv_area(q);
     if a2 <= 0.0 || !a2.is_finite() {
         return None;
     }
-    let e = [
-        (q[1] - q[0]).norm(),
-        (q[2] - q[1]).norm(),
-        (q[0] - q[2]).norm(),
-    ];
-    if height_base(a2, e) < f.min_hb {
+    if height_base_2d(q) < f.min_hb {
         return None;
     }
     let (s, t) = (q.map(|v| v.x), q.map(|v| v.y));
@@ -114,22 +99,11 @@ pub fn optimize(mesh: &Mesh, map: &mut ChartMap, opts: &StretchOptions) -> f64 {
                 Some(v) => 1.0 / (n.normalize().dot(&v.normalize()) + opts.k),
                 None => 1.0,
             };
-            let e3 = [
-                (p[1] - p[0]).norm(),
-                (p[2] - p[1]).norm(),
-                (p[0] - p[2]).norm(),
-            ];
-            let hb3 = height_base(a3, e3);
+            let hb3 = height_base_3d(p);
             let q = t.map(|i| map.uv[i as usize]);
-            let a2 = 0.5 * (q[1] - q[0]).perp(&(q[2] - q[0]));
-            let e2 = [
-                (q[1] - q[0]).norm(),
-                (q[2] - q[1]).norm(),
-                (q[0] - q[2]).norm(),
-            ];
             // Demand alpha where the 3D triangle allows it; never demand more than the start
             // already has, so the start is feasible.
-            let min_hb = opts.alpha.min(hb3).min(height_base(a2, e2)) * (1.0 - 1e-9);
+            let min_hb = opts.alpha.min(hb3).min(height_base_2d(q)) * (1.0 - 1e-9);
             Face {
                 v: t.map(|i| i as usize),
                 p,
@@ -284,11 +258,7 @@ pub fn optimize(mesh: &Mesh, map: &mut ChartMap, opts: &StretchOptions) -> f64 {
     }
     // Rescale so the chart's 2D area equals its 3D area; the weighted L2 at that scale is
     // sqrt(sum L2^2 w A3 / sum w A3) = sqrt(sl * sa / (swa * A3)).
-    let total_a3: f64 = map
-        .face_ids
-        .iter()
-        .map(|f| 0.5 * mesh.face_normal_area(*f).norm())
-        .sum();
+    let total_a3: f64 = map.face_ids.iter().map(|f| mesh.face_area(*f)).sum();
     let k = (total_a3 / sa).sqrt();
     for p in uv.iter_mut() {
         *p *= k;

@@ -23,11 +23,52 @@ pub struct ChartMap {
     pub face_ids: Vec<FaceId>,
 }
 
+/// Signed area of a UV triangle (positive when counter-clockwise).
+pub fn uv_area(q: [Vector2<f64>; 3]) -> f64 {
+    0.5 * (q[1] - q[0]).perp(&(q[2] - q[0]))
+}
+
+/// Smallest height/base ratio of a triangle of area `area` and edge lengths `e`:
+/// `2 A / (longest edge)^2`, 0 for a point.
+fn height_base(area: f64, e: [f64; 3]) -> f64 {
+    let m = e.iter().cloned().fold(0.0, f64::max);
+    if m > 0.0 {
+        2.0 * area / (m * m)
+    } else {
+        0.0
+    }
+}
+
+/// Smallest height/base ratio of a UV triangle (negative if it is flipped).
+pub fn height_base_2d(q: [Vector2<f64>; 3]) -> f64 {
+    height_base(
+        uv_area(q),
+        [
+            (q[1] - q[0]).norm(),
+            (q[2] - q[1]).norm(),
+            (q[0] - q[2]).norm(),
+        ],
+    )
+}
+
+/// Smallest height/base ratio of a 3D triangle.
+pub fn height_base_3d(p: [Point3<f64>; 3]) -> f64 {
+    let area = 0.5 * (p[1] - p[0]).cross(&(p[2] - p[0])).norm();
+    height_base(
+        area,
+        [
+            (p[1] - p[0]).norm(),
+            (p[2] - p[1]).norm(),
+            (p[0] - p[2]).norm(),
+        ],
+    )
+}
+
 /// Stretch of one triangle (Sander et al. 2001), from its 3D and 2D corners.
 /// Returns `(L2, L-infinity, signed 2D area)`; non-finite stretch for a flipped or degenerate
 /// 2D triangle.
 pub fn triangle_stretch(p: [Point3<f64>; 3], q: [Vector2<f64>; 3]) -> (f64, f64, f64) {
-    let area2 = 0.5 * ((q[1] - q[0]).perp(&(q[2] - q[0])));
+    let area2 = uv_area(q);
     if area2 <= 0.0 {
         return (f64::INFINITY, f64::INFINITY, area2);
     }
@@ -67,7 +108,7 @@ pub fn stretch(mesh: &Mesh, maps: &[ChartMap]) -> Stretch {
         for (f, lf) in m.face_ids.iter().zip(&m.faces) {
             let p = mesh.triangle(*f);
             let q = lf.map(|i| m.uv[i as usize]);
-            let area3 = 0.5 * mesh.face_normal_area(*f).norm();
+            let area3 = mesh.face_area(*f);
             let (_, _, area2) = triangle_stretch(p, q);
             if area2 < 0.0 {
                 flipped += 1;
@@ -118,18 +159,9 @@ pub fn flatten(mesh: &Mesh, faces: &[FaceId]) -> ChartMap {
     let pos: Vec<Point3<f64>> = vertices.iter().map(|v| mesh.positions[v.idx()]).collect();
     // Every chart is scaled so its 2D area equals its 3D area: packing decides the relative
     // scale of charts later, and stretch figures compare shapes, not units.
-    let area3: f64 = faces
-        .iter()
-        .map(|f| 0.5 * mesh.face_normal_area(*f).norm())
-        .sum();
+    let area3: f64 = faces.iter().map(|f| mesh.face_area(*f)).sum();
     let map = |uv: Vec<Vector2<f64>>| {
-        let area2: f64 = lf
-            .iter()
-            .map(|t| {
-                0.5 * (uv[t[1] as usize] - uv[t[0] as usize])
-                    .perp(&(uv[t[2] as usize] - uv[t[0] as usize]))
-            })
-            .sum();
+        let area2: f64 = lf.iter().map(|t| uv_area(t.map(|i| uv[i as usize]))).sum();
         let k = if area2 > 0.0 && area3 > 0.0 {
             (area3 / area2).sqrt()
         } else {
@@ -160,8 +192,7 @@ pub fn flatten(mesh: &Mesh, faces: &[FaceId]) -> ChartMap {
             .collect();
         let ok = lf.iter().zip(faces).all(|(t, f)| {
             let q = t.map(|i| uv[i as usize]);
-            let a2 = 0.5 * (q[1] - q[0]).perp(&(q[2] - q[0]));
-            a2 > 0.5 * 0.5 * mesh.face_normal_area(*f).norm()
+            uv_area(q) > 0.5 * mesh.face_area(*f)
         });
         if ok && !boundary_self_intersects(&lf, &uv) {
             return map(uv);
@@ -172,7 +203,7 @@ pub fn flatten(mesh: &Mesh, faces: &[FaceId]) -> ChartMap {
     if let Some(uv) = lscm(&lf, &pos) {
         let ok = lf.iter().all(|t| {
             let q = t.map(|i| uv[i as usize]);
-            (q[1] - q[0]).perp(&(q[2] - q[0])) > 0.0
+            uv_area(q) > 0.0
         });
         if ok && !boundary_self_intersects(&lf, &uv) {
             return map(uv);
@@ -365,9 +396,7 @@ fn lscm(faces: &[[u32; 3]], pos: &[Point3<f64>]) -> Option<Vec<Vector2<f64>>> {
     // LSCM may come out mirrored: flip v if most area is negative.
     let signed: f64 = faces
         .iter()
-        .map(|t| {
-            (uv[t[1] as usize] - uv[t[0] as usize]).perp(&(uv[t[2] as usize] - uv[t[0] as usize]))
-        })
+        .map(|t| uv_area(t.map(|i| uv[i as usize])))
         .sum();
     Some(if signed < 0.0 {
         uv.into_iter().map(|v| Vector2::new(v.x, -v.y)).collect()
@@ -554,39 +583,13 @@ mod tests {
     /// A planar disk (a triangulated polygon in a tilted plane) maps isometrically.
     #[test]
     fn planar_disk_maps_isometrically() {
-        let (n_ring, n_rad) = (24, 6);
-        let mut positions = vec![Point3::origin()];
-        for r in 1..=n_rad {
-            for k in 0..n_ring {
-                let a = std::f64::consts::TAU * k as f64 / n_ring as f64;
-                let (x, y) = (r as f64 * a.cos(), r as f64 * a.sin());
-                // Plane tilted about the x axis, with a little jitter inside the plane.
-                let j = 0.1 * ((k * 7 + r * 3) % 5) as f64 / 5.0;
-                positions.push(Point3::new(x + j, (y - j) * 0.6, (y - j) * 0.8));
-            }
-        }
-        let id = |r: usize, k: usize| {
-            VertexId(if r == 0 {
-                0
-            } else {
-                (1 + (r - 1) * n_ring + k % n_ring) as u32
-            })
-        };
-        let mut faces = Vec::new();
-        for k in 0..n_ring {
-            faces.push([id(0, 0), id(1, k), id(1, k + 1)]);
-        }
-        for r in 1..n_rad {
-            for k in 0..n_ring {
-                faces.push([id(r, k), id(r + 1, k), id(r + 1, k + 1)]);
-                faces.push([id(r, k), id(r + 1, k + 1), id(r, k + 1)]);
-            }
-        }
-        let mesh = Mesh {
-            positions,
-            faces,
-            ..Default::default()
-        };
+        let mesh = crate::atlas::test_meshes::polar_grid(6, 24, |r, k| {
+            let a = std::f64::consts::TAU * k as f64 / 24.0;
+            let (x, y) = (r as f64 * a.cos(), r as f64 * a.sin());
+            // Plane tilted about the x axis, with a little jitter inside the plane.
+            let j = 0.1 * ((k * 7 + r * 3) % 5) as f64 / 5.0;
+            Point3::new(x + j, (y - j) * 0.6, (y - j) * 0.8)
+        });
         let all: Vec<FaceId> = (0..mesh.num_faces() as u32).map(FaceId).collect();
         let s = stretch(&mesh, &[flatten(&mesh, &all)]);
         assert!(

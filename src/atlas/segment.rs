@@ -384,6 +384,7 @@ pub fn split(adj: &Adjacency, faces: &[FaceId]) -> (Vec<FaceId>, Vec<FaceId>) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::atlas::test_meshes::{two_copies, with_fins, with_holes};
     use crate::mesh::VertexId;
     use nalgebra::Point3;
 
@@ -492,41 +493,19 @@ mod tests {
         check(&torus);
 
         // Two components.
-        let mut two = sphere.clone();
-        let n = two.positions.len() as u32;
-        two.positions.extend(
-            sphere
-                .positions
-                .iter()
-                .map(|p| p + Vector3::new(3.0, 0.0, 0.0)),
-        );
-        two.faces
-            .extend(sphere.faces.iter().map(|f| f.map(|v| VertexId(v.0 + n))));
+        let two = two_copies(&sphere, Vector3::new(3.0, 0.0, 0.0));
         let c = check(&two);
-        assert!(c.charts.iter().all(|ch| ch
+        let first = |f: &FaceId| f.idx() < sphere.num_faces();
+        assert!(c
+            .charts
             .iter()
-            .all(|f| (f.idx() < sphere.num_faces()) == (ch[0].idx() < sphere.num_faces()))));
+            .all(|ch| ch.iter().all(|f| first(f) == first(&ch[0]))));
 
         // Holes.
-        let mut holed = sphere.clone();
-        holed.faces = holed
-            .faces
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| i % 17 != 0)
-            .map(|(_, f)| *f)
-            .collect();
-        check(&holed);
+        check(&with_holes(&sphere, 17));
 
         // Non-manifold: fins on three edges, and one face flipped.
-        let mut nm = sphere.clone();
-        for e in 0..3 {
-            let f = nm.faces[e * 50];
-            let p = nm.positions[f[0].idx()] * 1.5;
-            nm.positions.push(p);
-            nm.faces
-                .push([f[0], f[1], VertexId(nm.positions.len() as u32 - 1)]);
-        }
+        let mut nm = with_fins(&sphere, 3, 50, 1.5);
         nm.faces[7] = [nm.faces[7][0], nm.faces[7][2], nm.faces[7][1]];
         check(&nm);
     }

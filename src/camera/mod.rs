@@ -73,12 +73,6 @@ impl Camera {
     pub fn contains(&self, px: &Point2<f64>) -> bool {
         px.x >= 0.0 && px.y >= 0.0 && px.x <= self.width as f64 && px.y <= self.height as f64
     }
-
-    /// Mean focal length in pixels (for converting pixel tolerances to angles).
-    pub fn mean_focal(&self) -> f64 {
-        let (fx, fy, _, _) = self.model.intrinsics(&self.params);
-        0.5 * (fx + fy)
-    }
 }
 
 /// A rigid transform from world to camera coordinates, as COLMAP stores it:
