@@ -99,6 +99,14 @@ enum Command {
         /// Write the report as JSON here.
         #[arg(long)]
         report: Option<PathBuf>,
+        /// Fixed texel density (texels per unit of 3D length): charts fill as many pages as
+        /// they need (UDIM tiles: page p has u in [p, p+1]). Default: the largest density
+        /// that fits one page.
+        #[arg(long)]
+        texel_density: Option<f64>,
+        /// One texel density for every chart, instead of shares by weighted stretch energy.
+        #[arg(long)]
+        uniform_density: bool,
     },
     /// Generate a sample scene with known true colours.
     Sample {
@@ -249,12 +257,9 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             k,
             alpha,
             report,
+            texel_density,
+            uniform_density,
         } => {
-            if !(k > 1.0 && (0.0..0.5).contains(&alpha) && (16..=32768).contains(&size)) {
-                return Err(scantex::Error::Invalid(
-                    "--k must exceed 1, --alpha lie in [0, 0.5), --size in 16..=32768".into(),
-                ));
-            }
             let (input, _) = scantex::io::read_mesh(&mesh)?;
             let mut opts = scantex::atlas::AtlasOptions::default();
             opts.pack.size = size;
@@ -262,7 +267,9 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             opts.flatten.stretch.view_dir = view_dir.map(nalgebra::Vector3::from);
             opts.flatten.stretch.k = k;
             opts.flatten.stretch.alpha = alpha;
-            let (out_mesh, rep) = scantex::atlas::parameterize(&input, &opts);
+            opts.pack.texels_per_unit = texel_density;
+            opts.budget_by_energy = !uniform_density;
+            let (out_mesh, rep) = scantex::atlas::parameterize(&input, &opts)?;
             let picture = scantex::atlas::layout_picture(&out_mesh, size.min(2048));
             let png = scantex::io::image::encode_png(&image::DynamicImage::ImageRgb8(picture))?;
             scantex::io::write_mesh(&out, &out_mesh, None)?;

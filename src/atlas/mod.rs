@@ -27,6 +27,9 @@ pub struct FlattenOptions {
     /// A chart whose own L2 stretch after minimisation exceeds this is split in two and both
     /// halves flattened again. Default: 1.25.
     pub max_chart_stretch: f64,
+    /// Without a view weight, a chart whose starting map already has L2 stretch at most this
+    /// is kept as it is (the minimisation would gain less than the difference). Default: 1.01.
+    pub skip_below: f64,
 }
 
 impl Default for FlattenOptions {
@@ -35,6 +38,7 @@ impl Default for FlattenOptions {
             segment: SegmentOptions::default(),
             stretch: optimize::StretchOptions::default(),
             max_chart_stretch: 1.25,
+            skip_below: 1.01,
         }
     }
 }
@@ -116,13 +120,21 @@ fn flatten_chart(
     let mut todo = vec![chart];
     let mut out = Vec::new();
     while let Some(chart) = todo.pop() {
+        let t_dbg = std::time::Instant::now();
         let mut map = param::flatten(mesh, &chart);
         let start = param::stretch(mesh, std::slice::from_ref(&map));
-        // Charts that already flatten almost isometrically need no minimisation.
-        if start.l2 > 1.001 || opts.stretch.view_dir.is_some() {
+        let t_f = t_dbg.elapsed();
+        // Charts that already flatten almost isometrically need no minimisation, and charts
+        // far above the split threshold are split at once: minimisation brings L2 down by
+        // a factor of at most 1.5 on the meshes we measured (docs/decisions.md).
+        let hopeless = start.l2 > 2.0 * opts.max_chart_stretch && chart.len() > 1;
+        if !hopeless && (start.l2 > opts.skip_below || opts.stretch.view_dir.is_some()) {
             optimize::optimize(mesh, &mut map, &opts.stretch);
         }
         let s = param::stretch(mesh, std::slice::from_ref(&map));
+        if chart.len() > 5000 {
+            eprintln!("DBG chart {} start {:.3} end {:.3} flatten {:?} total {:?}", chart.len(), start.l2, s.l2, t_f, t_dbg.elapsed());
+        }
         if chart.len() > 1 && (s.l2 > opts.max_chart_stretch || s.flipped > 0 || s.zero_area > 0) {
             let (a, b) = split(adj, &chart);
             for part in [b, a] {
@@ -143,12 +155,59 @@ fn flatten_chart(
 }
 
 /// Options for [`parameterize`].
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AtlasOptions {
     /// Charts and stretch.
     pub flatten: FlattenOptions,
-    /// Atlas size and gutter.
+    /// Atlas size, gutter and texel density.
     pub pack: pack::PackOptions,
+    /// Give charts texels by their weighted stretch energy ([`optimize::chart_scales`]) rather
+    /// than one density for all. Default: true.
+    pub budget_by_energy: bool,
+}
+
+impl Default for AtlasOptions {
+    fn default() -> Self {
+        AtlasOptions {
+            flatten: FlattenOptions::default(),
+            pack: pack::PackOptions::default(),
+            budget_by_energy: true,
+        }
+    }
+}
+
+impl AtlasOptions {
+    /// Checks the options' ranges; the error says which option is out of range.
+    pub fn validate(&self) -> crate::Result<()> {
+        let s = &self.flatten.stretch;
+        let bad = |what: String| Err(crate::Error::Invalid(what));
+        if !(s.k > 1.0 && s.k.is_finite()) {
+            return bad(format!("k = {} must exceed 1 (w = 1 / (<N, V> + k))", s.k));
+        }
+        if !(0.0..0.5).contains(&s.alpha) {
+            return bad(format!("alpha = {} must lie in [0, 0.5)", s.alpha));
+        }
+        if let Some(v) = s.view_dir {
+            if !(v.iter().all(|x| x.is_finite()) && v.norm() > 0.0) {
+                return bad(format!("view direction {v:?} must be a non-zero finite vector"));
+            }
+        }
+        if !(16..=32768).contains(&self.pack.size) {
+            return bad(format!("atlas size {} must lie in 16..=32768", self.pack.size));
+        }
+        if 2 * self.pack.gutter + 1 >= self.pack.size {
+            return bad(format!(
+                "gutter {} leaves no room in a {}-texel atlas",
+                self.pack.gutter, self.pack.size
+            ));
+        }
+        if let Some(d) = self.pack.texels_per_unit {
+            if !(d.is_finite() && d > 0.0) {
+                return bad(format!("texel density {d} must be a positive number"));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// What [`parameterize`] measured.
@@ -161,8 +220,10 @@ pub struct AtlasReport {
     pub stretch: param::Stretch,
     /// Length of edges where two charts meet, over the length of all edges.
     pub seam_ratio: f64,
-    /// Texels covered by charts over all texels.
+    /// Texels covered by charts over all texels (texel centres inside a UV triangle, all pages).
     pub utilisation: f64,
+    /// Atlas pages (UDIM tiles 1001, 1002, ...).
+    pub pages: u32,
     /// Texels covered by more than one chart (0 unless something is wrong).
     pub overlapping_texels: usize,
     /// Texels per unit of 3D length.
@@ -180,7 +241,8 @@ pub struct AtlasReport {
 
 /// Stage 1: gives `mesh` texture coordinates in one atlas. The mesh is welded first (vertices
 /// split along old UV seams are one surface again); its faces keep their order.
-pub fn parameterize(mesh: &Mesh, opts: &AtlasOptions) -> (Mesh, AtlasReport) {
+pub fn parameterize(mesh: &Mesh, opts: &AtlasOptions) -> crate::Result<(Mesh, AtlasReport)> {
+    opts.validate()?;
     let t0 = std::time::Instant::now();
     let mut m = mesh.clone();
     m.uv = None;
@@ -188,10 +250,15 @@ pub fn parameterize(mesh: &Mesh, opts: &AtlasOptions) -> (Mesh, AtlasReport) {
     m.weld();
     let maps = flatten_all(&m, &opts.flatten);
     let t1 = std::time::Instant::now();
-    let packed = pack::pack(&m, &maps, &opts.pack);
+    let scales = if opts.budget_by_energy {
+        optimize::chart_scales(&m, &maps, &opts.flatten.stretch)
+    } else {
+        vec![1.0; maps.len()]
+    };
+    let packed = pack::pack(&m, &maps, &scales, &opts.pack)?;
     let t2 = std::time::Instant::now();
-    let stretch = param::stretch(&m, &maps);
-    let cov = pack::coverage(&packed.uv, &packed.face_chart, opts.pack.size);
+    let stretch = param::stretch_uv(&m, &packed.uv);
+    let cov = pack::coverage(&packed.uv, &packed.face_chart, opts.pack.size, packed.pages);
     let covered = cov.iter().filter(|&&c| c > 0).count();
     let overlapping = cov.iter().filter(|&&c| c > 1).count();
     let adj = Adjacency::new(&m);
@@ -217,6 +284,7 @@ pub fn parameterize(mesh: &Mesh, opts: &AtlasOptions) -> (Mesh, AtlasReport) {
         stretch,
         seam_ratio: if total > 0.0 { seam / total } else { 0.0 },
         utilisation: covered as f64 / cov.len() as f64,
+        pages: packed.pages,
         overlapping_texels: overlapping,
         texels_per_unit: packed.texels_per_unit,
         seconds_charts: (t1 - t0).as_secs_f64(),
@@ -225,7 +293,7 @@ pub fn parameterize(mesh: &Mesh, opts: &AtlasOptions) -> (Mesh, AtlasReport) {
         face_chart: packed.face_chart.clone(),
     };
     m.uv = Some(packed.uv);
-    (m, report)
+    Ok((m, report))
 }
 
 /// A picture of the layout: each UV triangle filled with its L2 stretch (green 1, yellow 1.5,

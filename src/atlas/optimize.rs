@@ -44,6 +44,51 @@ impl Default for StretchOptions {
     }
 }
 
+/// The paper's visual importance of a triangle with (any-length) normal `n`:
+/// `w = 1 / (<N, V> + k)`, or 1 without a view direction.
+pub fn weight(n: Vector3<f64>, opts: &StretchOptions) -> f64 {
+    match (opts.view_dir.and_then(|v| v.try_normalize(0.0)), n.try_normalize(0.0)) {
+        (Some(v), Some(n)) => 1.0 / (n.dot(&v) + opts.k),
+        // A degenerate triangle has no facing: it counts as seen edge-on.
+        (Some(_), None) => 1.0 / opts.k,
+        (None, _) => 1.0,
+    }
+}
+
+/// Texel budget across charts (Sander et al. 2001, §4): scaling chart i by c_i divides its
+/// weighted stretch energy E_i by c_i^2 and multiplies its area a_i by c_i^2; the minimum of
+/// the total energy for a fixed total area is at c_i proportional to (E_i / a_i)^(1/4). So
+/// charts the view weight marks as important, or that stretch more, get more texels.
+/// Returns c_i with an area-weighted mean of c_i^2 equal to 1.
+pub fn chart_scales(mesh: &Mesh, maps: &[ChartMap], opts: &StretchOptions) -> Vec<f64> {
+    let raw: Vec<(f64, f64)> = maps
+        .iter()
+        .map(|m| {
+            let (mut e, mut a) = (0.0, 0.0);
+            for (t, f) in m.faces.iter().zip(&m.face_ids) {
+                let q = t.map(|i| m.uv[i as usize]);
+                let (l2, _, a2) = super::param::triangle_stretch(mesh.triangle(*f), q);
+                let a3 = mesh.face_area(*f);
+                if a2.is_finite() && a2 > 0.0 && l2.is_finite() {
+                    e += weight(mesh.face_normal_area(*f), opts) * l2 * l2 * a3;
+                    a += a2;
+                }
+            }
+            (e, a)
+        })
+        .collect();
+    let c: Vec<f64> = raw
+        .iter()
+        .map(|&(e, a)| if e > 0.0 && a > 0.0 { (e / a).powf(0.25) } else { 1.0 })
+        .collect();
+    let (num, den) = raw
+        .iter()
+        .zip(&c)
+        .fold((0.0, 0.0), |(n, d), (&(_, a), &c)| (n + a * c * c, d + a));
+    let norm = if num > 0.0 { (den / num).sqrt() } else { 1.0 };
+    c.iter().map(|c| c * norm).collect()
+}
+
 struct Face {
     v: [usize; 3],
     p: [Point3<f64>; 3],
@@ -95,10 +140,7 @@ pub fn optimize(mesh: &Mesh, map: &mut ChartMap, opts: &StretchOptions) -> f64 {
             let p = mesh.triangle(*f);
             let n = mesh.face_normal_area(*f);
             let a3 = 0.5 * n.norm();
-            let w = match opts.view_dir {
-                Some(v) => 1.0 / (n.normalize().dot(&v.normalize()) + opts.k),
-                None => 1.0,
-            };
+            let w = weight(n, opts);
             let hb3 = height_base_3d(p);
             let q = t.map(|i| map.uv[i as usize]);
             // Demand alpha where the 3D triangle allows it; never demand more than the start

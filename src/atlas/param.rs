@@ -101,24 +101,43 @@ pub struct Stretch {
 
 /// Stretch of `maps` taken together (one normalisation for all of them).
 pub fn stretch(mesh: &Mesh, maps: &[ChartMap]) -> Stretch {
+    stretch_of(maps.iter().flat_map(|m| {
+        m.face_ids
+            .iter()
+            .zip(&m.faces)
+            .map(|(f, lf)| (*f, lf.map(|i| m.uv[i as usize])))
+    }), mesh)
+}
+
+/// Stretch of a mesh's per-corner UVs (one normalisation for the whole atlas, all pages).
+pub fn stretch_uv(mesh: &Mesh, uv: &crate::mesh::UvMap) -> Stretch {
+    stretch_of(
+        uv.faces.iter().enumerate().map(|(f, t)| {
+            (
+                FaceId(f as u32),
+                t.map(|i| uv.coords[i as usize].cast::<f64>()),
+            )
+        }),
+        mesh,
+    )
+}
+
+fn stretch_of(faces: impl Iterator<Item = (FaceId, [Vector2<f64>; 3])>, mesh: &Mesh) -> Stretch {
     let (mut a3, mut a2) = (0.0, 0.0);
     let mut tris = Vec::new();
     let (mut flipped, mut zero_area) = (0, 0);
-    for m in maps {
-        for (f, lf) in m.face_ids.iter().zip(&m.faces) {
-            let p = mesh.triangle(*f);
-            let q = lf.map(|i| m.uv[i as usize]);
-            let area3 = mesh.face_area(*f);
-            let (_, _, area2) = triangle_stretch(p, q);
-            if area2 < 0.0 {
-                flipped += 1;
-            } else if area2 == 0.0 {
-                zero_area += 1;
-            }
-            a3 += area3;
-            a2 += area2.abs();
-            tris.push((p, q, area3));
+    for (f, q) in faces {
+        let p = mesh.triangle(f);
+        let area3 = mesh.face_area(f);
+        let (_, _, area2) = triangle_stretch(p, q);
+        if area2 < 0.0 {
+            flipped += 1;
+        } else if area2 == 0.0 {
+            zero_area += 1;
         }
+        a3 += area3;
+        a2 += area2.abs();
+        tris.push((p, q, area3));
     }
     // Scaling the domain by k divides stretch by k: normalise with k = sqrt(A2 / A3).
     let k = if a3 > 0.0 { (a2 / a3).sqrt() } else { 1.0 };
@@ -214,8 +233,8 @@ pub fn flatten(mesh: &Mesh, faces: &[FaceId]) -> ChartMap {
 }
 
 /// Least-squares conformal map (Levy et al. 2002) with the two boundary vertices farthest
-/// apart pinned, solved by conjugate gradients on the normal equations. `None` if it does not
-/// converge or is degenerate.
+/// apart pinned, solved through the normal equations by sparse Cholesky. `None` if the system
+/// is degenerate.
 fn lscm(faces: &[[u32; 3]], pos: &[Point3<f64>]) -> Option<Vec<Vector2<f64>>> {
     let n = pos.len();
     let next = boundary_next(faces);
@@ -330,61 +349,38 @@ fn lscm(faces: &[[u32; 3]], pos: &[Point3<f64>]) -> Option<Vec<Vector2<f64>>> {
     for v in &mut rhs {
         *v = -*v;
     }
-    let normal = |x: &[f64], out: &mut Vec<f64>| {
-        let mut r = Vec::new();
-        apply(x, &mut r, false);
-        apply_t(&r, out);
-    };
-    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
-    // Jacobi preconditioner: the diagonal of A^T A is sum (a^2 + b^2) for both u and v.
-    let mut diag = vec![0.0; 2 * m];
+    // Assemble the lower triangle of A^T A: each triangle's two residual rows touch at most six
+    // unknowns, so it adds a 6 x 6 block. Then a sparse Cholesky factorisation (faer, with a
+    // fill-reducing ordering) solves it exactly, in time close to linear for surface meshes;
+    // conjugate gradients needed thousands of iterations on charts of 10^5 vertices.
+    use faer::linalg::solvers::Solve;
+    use faer::sparse::{SparseColMat, Triplet};
+    let mut trip: Vec<Triplet<u32, u32, f64>> = Vec::with_capacity(faces.len() * 21);
     for (t, c) in faces.iter().zip(&coeffs) {
+        // Unknown and its coefficients in rows r1 and r2.
+        let mut cols: Vec<(u32, f64, f64)> = Vec::with_capacity(6);
         for k in 0..3 {
             let vi = t[k] as usize;
             if idx[vi] != usize::MAX {
                 let (a, b) = c[k];
-                diag[2 * idx[vi]] += a * a + b * b;
-                diag[2 * idx[vi] + 1] += a * a + b * b;
+                cols.push((2 * idx[vi] as u32, a, b));
+                cols.push((2 * idx[vi] as u32 + 1, -b, a));
+            }
+        }
+        for &(i, ri1, ri2) in &cols {
+            for &(j, rj1, rj2) in &cols {
+                if i >= j {
+                    trip.push(Triplet::new(i, j, ri1 * rj1 + ri2 * rj2));
+                }
             }
         }
     }
-    if diag.iter().any(|d| *d <= 0.0) {
-        return None;
-    }
-    let mut x = vec![0.0; 2 * m];
-    let mut r = rhs.clone();
-    let mut z: Vec<f64> = r.iter().zip(&diag).map(|(r, d)| r / d).collect();
-    let mut p = z.clone();
-    let mut rz = dot(&r, &z);
-    let bb = dot(&rhs, &rhs).max(1e-300);
-    let mut ap = Vec::new();
-    // A start needs no more than 1e-8: the minimisation refines it. Large charts that
-    // converge slowly fall through to the mean-value embedding instead.
-    for _ in 0..(4 * m + 200).min(3_000) {
-        if dot(&r, &r) <= 1e-16 * bb {
-            break;
-        }
-        normal(&p, &mut ap);
-        let pap = dot(&p, &ap);
-        if pap <= 0.0 {
-            return None;
-        }
-        let alpha = rz / pap;
-        for i in 0..2 * m {
-            x[i] += alpha * p[i];
-            r[i] -= alpha * ap[i];
-        }
-        for i in 0..2 * m {
-            z[i] = r[i] / diag[i];
-        }
-        let rz1 = dot(&r, &z);
-        let beta = rz1 / rz;
-        rz = rz1;
-        for i in 0..2 * m {
-            p[i] = z[i] + beta * p[i];
-        }
-    }
-    if dot(&r, &r) > 1e-16 * bb {
+    let a = SparseColMat::<u32, f64>::try_new_from_triplets(2 * m, 2 * m, &trip).ok()?;
+    drop(trip);
+    let llt = a.sp_cholesky(faer::Side::Lower).ok()?;
+    let x = llt.solve(faer::Mat::<f64>::from_fn(2 * m, 1, |i, _| rhs[i]));
+    let x: Vec<f64> = (0..2 * m).map(|i| x[(i, 0)]).collect();
+    if x.iter().any(|v| !v.is_finite()) {
         return None;
     }
     let uv: Vec<Vector2<f64>> = (0..n)
@@ -424,27 +420,57 @@ fn boundary_next(faces: &[[u32; 3]]) -> HashMap<u32, u32> {
 /// border even when every triangle keeps its orientation).
 fn boundary_self_intersects(faces: &[[u32; 3]], uv: &[Vector2<f64>]) -> bool {
     let edges: Vec<(u32, u32)> = boundary_next(faces).into_iter().collect();
-    if edges.len() > 4000 {
-        // Quadratic check: for very long borders, fall back to the embedding that is
-        // guaranteed one-to-one.
-        return true;
+    if edges.len() < 4 {
+        return false;
+    }
+    // Bucket the edges in a uniform grid of about one edge per cell, then test only pairs that
+    // share a cell: linear in the border length for the borders charts have.
+    let lo = edges
+        .iter()
+        .fold(Vector2::repeat(f64::INFINITY), |a, e| a.inf(&uv[e.0 as usize]));
+    let hi = edges
+        .iter()
+        .fold(Vector2::repeat(f64::NEG_INFINITY), |a, e| a.sup(&uv[e.0 as usize]));
+    let cells = (edges.len() as f64).sqrt().ceil().max(1.0);
+    let ext = (hi - lo).max().max(1e-300);
+    let cell = ext / cells;
+    let dim = cells as usize + 1;
+    let key = |p: Vector2<f64>| {
+        let c = ((p - lo) / cell).map(|v| (v.max(0.0) as usize).min(dim - 1));
+        (c.x, c.y)
+    };
+    let mut grid: HashMap<(usize, usize), Vec<usize>> = HashMap::new();
+    for (i, &(a, b)) in edges.iter().enumerate() {
+        let (ka, kb) = (key(uv[a as usize]), key(uv[b as usize]));
+        for x in ka.0.min(kb.0)..=ka.0.max(kb.0) {
+            for y in ka.1.min(kb.1)..=ka.1.max(kb.1) {
+                grid.entry((x, y)).or_default().push(i);
+            }
+        }
     }
     let cross = |a: Vector2<f64>, b: Vector2<f64>, c: Vector2<f64>| (b - a).perp(&(c - a));
-    for (i, &(a, b)) in edges.iter().enumerate() {
-        for &(c, d) in &edges[i + 1..] {
-            if a == c || a == d || b == c || b == d {
-                continue;
-            }
-            let (pa, pb, pc, pd) = (
-                uv[a as usize],
-                uv[b as usize],
-                uv[c as usize],
-                uv[d as usize],
-            );
-            let (d1, d2) = (cross(pc, pd, pa), cross(pc, pd, pb));
-            let (d3, d4) = (cross(pa, pb, pc), cross(pa, pb, pd));
-            if d1 * d2 < 0.0 && d3 * d4 < 0.0 {
-                return true;
+    let mut keys: Vec<&(usize, usize)> = grid.keys().collect();
+    keys.sort();
+    for k in keys {
+        let list = &grid[k];
+        for (n, &i) in list.iter().enumerate() {
+            let (a, b) = edges[i];
+            for &j in &list[n + 1..] {
+                let (c, d) = edges[j];
+                if a == c || a == d || b == c || b == d {
+                    continue;
+                }
+                let (pa, pb, pc, pd) = (
+                    uv[a as usize],
+                    uv[b as usize],
+                    uv[c as usize],
+                    uv[d as usize],
+                );
+                let (d1, d2) = (cross(pc, pd, pa), cross(pc, pd, pb));
+                let (d3, d4) = (cross(pa, pb, pc), cross(pa, pb, pd));
+                if d1 * d2 < 0.0 && d3 * d4 < 0.0 {
+                    return true;
+                }
             }
         }
     }

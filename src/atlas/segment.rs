@@ -61,26 +61,28 @@ pub struct Adjacency {
 impl Adjacency {
     /// Builds the adjacency of `mesh`.
     pub fn new(mesh: &Mesh) -> Self {
-        let mut directed: HashMap<(u32, u32), Vec<(u32, u8)>> =
-            HashMap::with_capacity(mesh.num_faces() * 3);
+        // Half-edges sorted by (start, end): the same half-edge and its twin are found by binary
+        // search (a hash map of 3 million entries cost seconds).
+        let mut half: Vec<(u32, u32, u32)> = Vec::with_capacity(mesh.num_faces() * 3);
         for (f, face) in mesh.faces.iter().enumerate() {
             for k in 0..3 {
-                directed
-                    .entry((face[k].0, face[(k + 1) % 3].0))
-                    .or_default()
-                    .push((f as u32, k as u8));
+                half.push((face[k].0, face[(k + 1) % 3].0, f as u32));
             }
         }
+        half.sort_unstable();
+        let count = |a: u32, b: u32| -> (usize, Option<u32>) {
+            let lo = half.partition_point(|h| (h.0, h.1) < (a, b));
+            let hi = half.partition_point(|h| (h.0, h.1) <= (a, b));
+            (hi - lo, (hi > lo).then(|| half[lo].2))
+        };
         let mut neighbours = vec![[None; 3]; mesh.num_faces()];
         for (f, face) in mesh.faces.iter().enumerate() {
             for k in 0..3 {
                 let (a, b) = (face[k].0, face[(k + 1) % 3].0);
-                let same = directed.get(&(a, b)).map_or(0, Vec::len);
-                let opposite = directed.get(&(b, a));
                 // Manifold and consistently oriented: exactly this half-edge and one twin.
-                if same == 1 {
-                    if let Some(o) = opposite.filter(|o| o.len() == 1) {
-                        neighbours[f][k] = Some(o[0].0);
+                if count(a, b).0 == 1 {
+                    if let (1, Some(g)) = count(b, a) {
+                        neighbours[f][k] = Some(g);
                     }
                 }
             }
