@@ -108,6 +108,15 @@ enum Command {
         #[arg(long)]
         uniform_density: bool,
     },
+    /// Measure the UV atlas a mesh already has (from scantex or any other unwrapper): UV
+    /// islands, stretch, flips, seams, utilisation and overlapping texels; prints JSON.
+    UvReport {
+        /// Mesh with texture coordinates (.obj, .ply, .gltf, .glb).
+        mesh: PathBuf,
+        /// Texture size (texels per side, per UDIM page) for utilisation and overlaps.
+        #[arg(long, default_value_t = 4096)]
+        size: u32,
+    },
     /// Generate a sample scene with known true colours.
     Sample {
         /// Output directory.
@@ -285,6 +294,13 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             if let Some(p) = report {
                 scantex::io::write_atomic(&p, json.as_bytes())?;
             }
+            println!("{json}");
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::UvReport { mesh, size } => {
+            let (input, _) = scantex::io::read_mesh(&mesh)?;
+            let rep = scantex::atlas::measure(&input, size)?;
+            let json = serde_json::to_string_pretty(&rep).expect("report serialises");
             println!("{json}");
             Ok(ExitCode::SUCCESS)
         }

@@ -49,11 +49,15 @@ impl Default for FlattenOptions {
 /// stretch is within `max_chart_stretch` it stays one chart (no seams at all).
 /// Components are processed in parallel; the result does not depend on the thread count.
 pub fn flatten_all(mesh: &Mesh, opts: &FlattenOptions) -> Vec<ChartMap> {
+    flatten_all_with(mesh, &Adjacency::new(mesh), opts)
+}
+
+/// [`flatten_all`] with the mesh's adjacency already built.
+pub fn flatten_all_with(mesh: &Mesh, adj: &Adjacency, opts: &FlattenOptions) -> Vec<ChartMap> {
     use rayon::prelude::*;
-    let adj = Adjacency::new(mesh);
-    let charts = segment::segment(mesh, &opts.segment).charts;
+    let charts = segment::segment_with(mesh, adj, &opts.segment).charts;
     // Group the charts by connected component (through crossable edges), in chart order.
-    let comp = components(mesh, &adj);
+    let comp = components(mesh, adj);
     let mut groups: Vec<(u32, Vec<Vec<crate::mesh::FaceId>>)> = Vec::new();
     let mut slot: std::collections::HashMap<u32, usize> = std::collections::HashMap::new();
     for c in charts {
@@ -69,7 +73,7 @@ pub fn flatten_all(mesh: &Mesh, opts: &FlattenOptions) -> Vec<ChartMap> {
         .map(|(_, group)| {
             if group.len() > 1 {
                 let whole: Vec<crate::mesh::FaceId> = group.iter().flatten().copied().collect();
-                if is_disk(mesh, &adj, &whole) {
+                if is_disk(mesh, adj, &whole) {
                     let mut map = param::flatten(mesh, &whole);
                     optimize::optimize(mesh, &mut map, &opts.stretch);
                     let s = param::stretch(mesh, std::slice::from_ref(&map));
@@ -78,9 +82,10 @@ pub fn flatten_all(mesh: &Mesh, opts: &FlattenOptions) -> Vec<ChartMap> {
                     }
                 }
             }
+            // Charts of one component in parallel too: a scan is often one big component.
             group
-                .into_iter()
-                .flat_map(|c| flatten_chart(mesh, &adj, c, opts))
+                .into_par_iter()
+                .flat_map_iter(|c| flatten_chart(mesh, adj, c, opts))
                 .collect()
         })
         .collect();
@@ -120,10 +125,8 @@ fn flatten_chart(
     let mut todo = vec![chart];
     let mut out = Vec::new();
     while let Some(chart) = todo.pop() {
-        let t_dbg = std::time::Instant::now();
         let mut map = param::flatten(mesh, &chart);
         let start = param::stretch(mesh, std::slice::from_ref(&map));
-        let t_f = t_dbg.elapsed();
         // Charts that already flatten almost isometrically need no minimisation, and charts
         // far above the split threshold are split at once: minimisation brings L2 down by
         // a factor of at most 1.5 on the meshes we measured (docs/decisions.md).
@@ -132,9 +135,6 @@ fn flatten_chart(
             optimize::optimize(mesh, &mut map, &opts.stretch);
         }
         let s = param::stretch(mesh, std::slice::from_ref(&map));
-        if chart.len() > 5000 {
-            eprintln!("DBG chart {} start {:.3} end {:.3} flatten {:?} total {:?}", chart.len(), start.l2, s.l2, t_f, t_dbg.elapsed());
-        }
         if chart.len() > 1 && (s.l2 > opts.max_chart_stretch || s.flipped > 0 || s.zero_area > 0) {
             let (a, b) = split(adj, &chart);
             for part in [b, a] {
@@ -248,7 +248,8 @@ pub fn parameterize(mesh: &Mesh, opts: &AtlasOptions) -> crate::Result<(Mesh, At
     m.uv = None;
     m.texture = None;
     m.weld();
-    let maps = flatten_all(&m, &opts.flatten);
+    let adj = Adjacency::new(&m);
+    let maps = flatten_all_with(&m, &adj, &opts.flatten);
     let t1 = std::time::Instant::now();
     let scales = if opts.budget_by_energy {
         optimize::chart_scales(&m, &maps, &opts.flatten.stretch)
@@ -257,11 +258,80 @@ pub fn parameterize(mesh: &Mesh, opts: &AtlasOptions) -> crate::Result<(Mesh, At
     };
     let packed = pack::pack(&m, &maps, &scales, &opts.pack)?;
     let t2 = std::time::Instant::now();
-    let stretch = param::stretch_uv(&m, &packed.uv);
-    let cov = pack::coverage(&packed.uv, &packed.face_chart, opts.pack.size, packed.pages);
+    let mut report = measure_with(&m, &adj, &packed.uv, packed.face_chart, opts.pack.size);
+    report.texels_per_unit = packed.texels_per_unit;
+    report.seconds_charts = (t1 - t0).as_secs_f64();
+    report.seconds_pack = (t2 - t1).as_secs_f64();
+    report.seconds_measure = t2.elapsed().as_secs_f64();
+    m.uv = Some(packed.uv);
+    Ok((m, report))
+}
+
+/// Measures the UV atlas a mesh already has (from any tool), as [`parameterize`] reports its
+/// own: charts are the UV islands (faces joined through shared texture-coordinate indices),
+/// stretch over the whole atlas, seams, and utilisation and overlaps at `size` texels per page
+/// (UDIM pages from the integer part of u). Times are zero.
+pub fn measure(mesh: &Mesh, size: u32) -> crate::Result<AtlasReport> {
+    let Some(uv) = &mesh.uv else {
+        return Err(crate::Error::Invalid("the mesh has no texture coordinates".into()));
+    };
+    if !(1..=32768).contains(&size) {
+        return Err(crate::Error::Invalid(format!(
+            "atlas size {size} must lie in 1..=32768"
+        )));
+    }
+    let mut islands = crate::mesh::UnionFind::new(uv.coords.len());
+    for t in &uv.faces {
+        islands.union(t[0] as usize, t[1] as usize);
+        islands.union(t[0] as usize, t[2] as usize);
+    }
+    let mut id: std::collections::HashMap<usize, u32> = std::collections::HashMap::new();
+    let face_chart: Vec<u32> = uv
+        .faces
+        .iter()
+        .map(|t| {
+            let r = islands.find(t[0] as usize);
+            let n = id.len() as u32;
+            *id.entry(r).or_insert(n)
+        })
+        .collect();
+    let mut m = mesh.clone();
+    m.weld();
+    let adj = Adjacency::new(&m);
+    Ok(measure_with(&m, &adj, uv, face_chart, size))
+}
+
+fn measure_with(
+    m: &Mesh,
+    adj: &Adjacency,
+    uv: &crate::mesh::UvMap,
+    face_chart: Vec<u32>,
+    size: u32,
+) -> AtlasReport {
+    let mut stretch = param::stretch_uv(m, uv);
+    // A mirrored island is not a fold: count as flipped the triangles whose orientation differs
+    // from the majority (by area) of their island.
+    let signed: Vec<f64> = uv
+        .faces
+        .iter()
+        .map(|t| param::uv_area(t.map(|i| uv.coords[i as usize].cast::<f64>())))
+        .collect();
+    let mut island = vec![0.0; face_chart.iter().map(|&c| c as usize + 1).max().unwrap_or(0)];
+    for (a, &c) in signed.iter().zip(&face_chart) {
+        island[c as usize] += a;
+    }
+    stretch.flipped = signed
+        .iter()
+        .zip(&face_chart)
+        .filter(|(a, &c)| **a != 0.0 && (**a > 0.0) != (island[c as usize] > 0.0))
+        .count();
+    let pages = (0..uv.faces.len())
+        .map(|f| pack::face_page(uv, f) + 1)
+        .max()
+        .unwrap_or(1);
+    let cov = pack::coverage(uv, &face_chart, size, pages);
     let covered = cov.iter().filter(|&&c| c > 0).count();
     let overlapping = cov.iter().filter(|&&c| c > 1).count();
-    let adj = Adjacency::new(&m);
     let (mut seam, mut total) = (0.0, 0.0);
     for (f, face) in m.faces.iter().enumerate() {
         for k in 0..3 {
@@ -270,7 +340,7 @@ pub fn parameterize(mesh: &Mesh, opts: &AtlasOptions) -> crate::Result<(Mesh, At
                 // Interior edges are seen from both sides: count each once.
                 Some(g) if (g as usize) > f => {
                     total += len;
-                    if packed.face_chart[g as usize] != packed.face_chart[f] {
+                    if face_chart[g as usize] != face_chart[f] {
                         seam += len;
                     }
                 }
@@ -279,21 +349,19 @@ pub fn parameterize(mesh: &Mesh, opts: &AtlasOptions) -> crate::Result<(Mesh, At
             }
         }
     }
-    let report = AtlasReport {
-        charts: maps.len(),
+    AtlasReport {
+        charts: face_chart.iter().map(|&c| c as usize + 1).max().unwrap_or(0),
         stretch,
         seam_ratio: if total > 0.0 { seam / total } else { 0.0 },
         utilisation: covered as f64 / cov.len() as f64,
-        pages: packed.pages,
+        pages,
         overlapping_texels: overlapping,
-        texels_per_unit: packed.texels_per_unit,
-        seconds_charts: (t1 - t0).as_secs_f64(),
-        seconds_pack: (t2 - t1).as_secs_f64(),
-        seconds_measure: t2.elapsed().as_secs_f64(),
-        face_chart: packed.face_chart.clone(),
-    };
-    m.uv = Some(packed.uv);
-    Ok((m, report))
+        texels_per_unit: 0.0,
+        seconds_charts: 0.0,
+        seconds_pack: 0.0,
+        seconds_measure: 0.0,
+        face_chart,
+    }
 }
 
 /// A picture of the layout: each UV triangle filled with its L2 stretch (green 1, yellow 1.5,
@@ -331,7 +399,7 @@ pub fn layout_picture(mesh: &Mesh, size: u32) -> image::RgbImage {
 #[cfg(test)]
 mod tests {
     use super::test_meshes::{
-        faces_where, polar_grid, texel_density, two_copies, with_fins, with_holes,
+        faces_where, icosphere, polar_grid, texel_density, two_copies, with_fins, with_holes,
     };
     use super::*;
     use nalgebra::{Point3, Vector3};
@@ -428,16 +496,18 @@ mod tests {
             with_holes(&torus, 13),
             with_fins(&torus, 4, 101, 1.3),
             torus,
+            icosphere(3),
         ];
         let opts = AtlasOptions {
             pack: pack::PackOptions {
                 size: 512,
                 gutter: 4,
+                ..Default::default()
             },
             ..Default::default()
         };
         for mesh in meshes {
-            let (m, r) = parameterize(&mesh, &opts);
+            let (m, r) = parameterize(&mesh, &opts).unwrap();
             assert_eq!(r.overlapping_texels, 0, "{r:?}");
             assert_eq!((r.stretch.flipped, r.stretch.zero_area), (0, 0));
             let uv = m.uv.as_ref().unwrap();
@@ -466,7 +536,7 @@ mod tests {
                 }
             }
             assert!(r.utilisation > 0.1, "{r:?}");
-            let (m2, _) = parameterize(&mesh, &opts);
+            let (m2, _) = parameterize(&mesh, &opts).unwrap();
             assert!(m2.uv == m.uv, "deterministic");
         }
     }
@@ -493,6 +563,7 @@ mod tests {
         assert_eq!((s.flipped, s.zero_area), (0, 0));
         let ratio = texel_density(&mesh, &maps[0], |nz| nz > 0.9)
             / texel_density(&mesh, &maps[0], |nz| nz < 0.2);
+        eprintln!("pole/rim texture area per 3D area: {ratio:.3}");
         assert!(
             ratio >= 1.15,
             "texture area per 3D area, pole / rim = {ratio:.3}"

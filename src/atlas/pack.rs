@@ -402,7 +402,6 @@ fn attempt(
     one_page: bool,
 ) -> Option<(Vec<Placement>, u32)> {
     use rayon::prelude::*;
-    let t_m = std::time::Instant::now();
     let masks: Vec<Vec<Mask>> = charts
         .par_iter()
         .map(|(uv, faces)| {
@@ -413,9 +412,7 @@ fn attempt(
                 .collect()
         })
         .collect();
-    let t_dbg = std::time::Instant::now();
     let mut pages = vec![Page::new(size)];
-    eprintln!("DBG masks {:?}", t_m.elapsed());
     let mut out = vec![
         Placement {
             page: 0,
@@ -451,7 +448,6 @@ fn attempt(
         }
         if !placed {
             if one_page {
-                eprintln!("DBG fail {:?}", t_dbg.elapsed());
                 return None;
             }
             let mut page = Page::new(size);
@@ -472,7 +468,6 @@ fn attempt(
             pages.push(page);
         }
     }
-    eprintln!("DBG ok {:?}", t_dbg.elapsed());
     Some((out, pages.len() as u32))
 }
 
@@ -677,16 +672,22 @@ pub fn raster_triangle(
     }
 }
 
+/// The UDIM page (0 for tile 1001) of face `f`: the integer part of its centroid's u.
+pub fn face_page(uv: &UvMap, f: usize) -> u32 {
+    let u: f32 = uv.faces[f].iter().map(|&i| uv.coords[i as usize].x).sum::<f32>() / 3.0;
+    u.floor().max(0.0) as u32
+}
+
 /// Rasterises the UV triangles at `size` x `size` texels per page (texel centres) and returns,
 /// per texel of `pages` pages (page after page), how many charts cover it (0, 1, or more if
-/// charts overlap). A face belongs to the page of its first corner's u (UDIM tiles).
+/// charts overlap). A face belongs to the page of its centroid's u ([`face_page`]).
 pub fn coverage(uv: &UvMap, face_chart: &[u32], size: u32, pages: u32) -> Vec<u8> {
     let per = (size * size) as usize;
     let mut owner = vec![u32::MAX; per * pages as usize];
     let mut count = vec![0u8; per * pages as usize];
     let n = size as f64;
     for (f, t) in uv.faces.iter().enumerate() {
-        let page = (uv.coords[t[0] as usize].x.floor().max(0.0) as usize).min(pages as usize - 1);
+        let page = (face_page(uv, f) as usize).min(pages as usize - 1);
         let q = t.map(|i| {
             let c = uv.coords[i as usize].cast::<f64>();
             Vector2::new(c.x - page as f64, c.y) * n

@@ -142,14 +142,20 @@ fn stretch_of(faces: impl Iterator<Item = (FaceId, [Vector2<f64>; 3])>, mesh: &M
     // Scaling the domain by k divides stretch by k: normalise with k = sqrt(A2 / A3).
     let k = if a3 > 0.0 { (a2 / a3).sqrt() } else { 1.0 };
     let (mut num, mut linf) = (0.0, 0.0f64);
+    // Zero-area UV triangles have no finite stretch: they are counted in `zero_area` and left
+    // out of L2 and L-infinity (as their 3D area is).
+    let mut a3_used = 0.0;
     for (p, q, area3) in tris {
-        let (l2, li, _) = triangle_stretch(p, q.map(|v| v / k));
-        num += l2 * l2 * area3;
-        linf = linf.max(li);
+        let (l2, li, a2) = triangle_stretch(p, q.map(|v| v / k));
+        if a2 != 0.0 && l2.is_finite() {
+            num += l2 * l2 * area3;
+            a3_used += area3;
+            linf = linf.max(li);
+        }
     }
     Stretch {
-        l2: if a3 > 0.0 {
-            (num / a3).sqrt()
+        l2: if a3_used > 0.0 {
+            (num / a3_used).sqrt()
         } else {
             f64::NAN
         },
@@ -418,8 +424,19 @@ fn boundary_next(faces: &[[u32; 3]]) -> HashMap<u32, u32> {
 
 /// True if two boundary edges of the map cross (a projection can fold over itself at the
 /// border even when every triangle keeps its orientation).
-fn boundary_self_intersects(faces: &[[u32; 3]], uv: &[Vector2<f64>]) -> bool {
-    let edges: Vec<(u32, u32)> = boundary_next(faces).into_iter().collect();
+pub(crate) fn boundary_self_intersects(faces: &[[u32; 3]], uv: &[Vector2<f64>]) -> bool {
+    edges_cross(&boundary_edges(faces), uv)
+}
+
+/// The directed boundary edges of a chart, sorted.
+pub(crate) fn boundary_edges(faces: &[[u32; 3]]) -> Vec<(u32, u32)> {
+    let mut edges: Vec<(u32, u32)> = boundary_next(faces).into_iter().collect();
+    edges.sort_unstable();
+    edges
+}
+
+/// True if two of `edges` (sharing no vertex) cross.
+pub(crate) fn edges_cross(edges: &[(u32, u32)], uv: &[Vector2<f64>]) -> bool {
     if edges.len() < 4 {
         return false;
     }

@@ -93,7 +93,11 @@ impl Adjacency {
 
 /// Cuts `mesh` into disk-shaped charts.
 pub fn segment(mesh: &Mesh, opts: &SegmentOptions) -> Charts {
-    let adj = Adjacency::new(mesh);
+    segment_with(mesh, &Adjacency::new(mesh), opts)
+}
+
+/// [`segment`] with the mesh's adjacency already built.
+pub fn segment_with(mesh: &Mesh, adj: &Adjacency, opts: &SegmentOptions) -> Charts {
     let normals: Vec<Vector3<f64>> = (0..mesh.num_faces())
         .map(|f| mesh.face_normal_area(FaceId(f as u32)))
         .collect();
@@ -385,10 +389,9 @@ pub fn split(adj: &Adjacency, faces: &[FaceId]) -> (Vec<FaceId>, Vec<FaceId>) {
 
 #[cfg(test)]
 mod tests {
+    use super::super::test_meshes::icosphere;
     use super::*;
     use crate::atlas::test_meshes::{two_copies, with_fins, with_holes};
-    use crate::mesh::VertexId;
-    use nalgebra::Point3;
 
     fn check(mesh: &Mesh) -> Charts {
         let c = segment(mesh, &SegmentOptions::default());
@@ -408,78 +411,6 @@ mod tests {
         c
     }
 
-    fn icosphere(levels: usize) -> Mesh {
-        let t = (1.0 + 5f64.sqrt()) / 2.0;
-        let mut p: Vec<Point3<f64>> = [
-            (-1.0, t, 0.0),
-            (1.0, t, 0.0),
-            (-1.0, -t, 0.0),
-            (1.0, -t, 0.0),
-            (0.0, -1.0, t),
-            (0.0, 1.0, t),
-            (0.0, -1.0, -t),
-            (0.0, 1.0, -t),
-            (t, 0.0, -1.0),
-            (t, 0.0, 1.0),
-            (-t, 0.0, -1.0),
-            (-t, 0.0, 1.0),
-        ]
-        .iter()
-        .map(|&(x, y, z)| Point3::new(x, y, z))
-        .collect();
-        let mut f: Vec<[u32; 3]> = vec![
-            [0, 11, 5],
-            [0, 5, 1],
-            [0, 1, 7],
-            [0, 7, 10],
-            [0, 10, 11],
-            [1, 5, 9],
-            [5, 11, 4],
-            [11, 10, 2],
-            [10, 7, 6],
-            [7, 1, 8],
-            [3, 9, 4],
-            [3, 4, 2],
-            [3, 2, 6],
-            [3, 6, 8],
-            [3, 8, 9],
-            [4, 9, 5],
-            [2, 4, 11],
-            [6, 2, 10],
-            [8, 6, 7],
-            [9, 8, 1],
-        ];
-        for _ in 0..levels {
-            let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
-            let mut nf = Vec::new();
-            for tri in &f {
-                let m: Vec<u32> = (0..3)
-                    .map(|k| {
-                        let (a, b) = (tri[k].min(tri[(k + 1) % 3]), tri[k].max(tri[(k + 1) % 3]));
-                        *mid.entry((a, b)).or_insert_with(|| {
-                            p.push(nalgebra::center(&p[a as usize], &p[b as usize]));
-                            p.len() as u32 - 1
-                        })
-                    })
-                    .collect();
-                nf.extend([
-                    [tri[0], m[0], m[2]],
-                    [tri[1], m[1], m[0]],
-                    [tri[2], m[2], m[1]],
-                    [m[0], m[1], m[2]],
-                ]);
-            }
-            f = nf;
-        }
-        for q in &mut p {
-            *q = Point3::from(q.coords.normalize());
-        }
-        Mesh {
-            positions: p,
-            faces: f.into_iter().map(|t| t.map(VertexId)).collect(),
-            ..Default::default()
-        }
-    }
 
     #[test]
     fn sphere_torus_components_holes_and_non_manifold_all_give_disks() {

@@ -3,6 +3,7 @@
 use super::param::{uv_area, ChartMap};
 use crate::mesh::{FaceId, Mesh, VertexId};
 use nalgebra::{Point3, Vector3};
+use std::collections::HashMap;
 
 /// A disk-like grid around a centre vertex: `pos(0, 0)` is the centre, `pos(r, k)` vertex k of
 /// ring r (1..=rings, `sectors` per ring). Fans around the centre, quads split between rings.
@@ -92,4 +93,78 @@ pub fn faces_where(m: &Mesh, pick: impl Fn(Point3<f64>) -> bool) -> Vec<FaceId> 
             pick(Point3::from((a.coords + b.coords + c.coords) / 3.0))
         })
         .collect()
+}
+
+/// An icosahedron subdivided `levels` times, on the unit sphere.
+pub fn icosphere(levels: usize) -> Mesh {
+    let t = (1.0 + 5f64.sqrt()) / 2.0;
+    let mut p: Vec<Point3<f64>> = [
+        (-1.0, t, 0.0),
+        (1.0, t, 0.0),
+        (-1.0, -t, 0.0),
+        (1.0, -t, 0.0),
+        (0.0, -1.0, t),
+        (0.0, 1.0, t),
+        (0.0, -1.0, -t),
+        (0.0, 1.0, -t),
+        (t, 0.0, -1.0),
+        (t, 0.0, 1.0),
+        (-t, 0.0, -1.0),
+        (-t, 0.0, 1.0),
+    ]
+    .iter()
+    .map(|&(x, y, z)| Point3::new(x, y, z))
+    .collect();
+    let mut f: Vec<[u32; 3]> = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    for _ in 0..levels {
+        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
+        let mut nf = Vec::new();
+        for tri in &f {
+            let m: Vec<u32> = (0..3)
+                .map(|k| {
+                    let (a, b) = (tri[k].min(tri[(k + 1) % 3]), tri[k].max(tri[(k + 1) % 3]));
+                    *mid.entry((a, b)).or_insert_with(|| {
+                        p.push(nalgebra::center(&p[a as usize], &p[b as usize]));
+                        p.len() as u32 - 1
+                    })
+                })
+                .collect();
+            nf.extend([
+                [tri[0], m[0], m[2]],
+                [tri[1], m[1], m[0]],
+                [tri[2], m[2], m[1]],
+                [m[0], m[1], m[2]],
+            ]);
+        }
+        f = nf;
+    }
+    for q in &mut p {
+        *q = Point3::from(q.coords.normalize());
+    }
+    Mesh {
+        positions: p,
+        faces: f.into_iter().map(|t| t.map(VertexId)).collect(),
+        ..Default::default()
+    }
 }
