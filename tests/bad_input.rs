@@ -100,9 +100,14 @@ fn walk(dir: &Path) -> Vec<std::path::PathBuf> {
 /// Runs `scantex info <args>` in `dir` and returns stderr, asserting failure without panic
 /// and that no file appeared.
 fn fails(dir: &Path, args: &[&str]) -> String {
+    fails_cmd(dir, "info", args)
+}
+
+/// As [`fails`], for any subcommand.
+fn fails_cmd(dir: &Path, cmd: &str, args: &[&str]) -> String {
     let before = files(dir);
     let out = Command::new(env!("CARGO_BIN_EXE_scantex"))
-        .arg("info")
+        .arg(cmd)
         .args(args)
         .current_dir(dir)
         .output()
@@ -385,4 +390,33 @@ fn gltf_accessor_past_the_buffer() {
     std::fs::write(d.path().join("mesh.gltf"), g.to_string()).unwrap();
     let err = fails(d.path(), &["."]);
     assert!(err.contains("mesh.gltf"), "{err}");
+}
+
+#[test]
+fn atlas_options_out_of_range_and_meshes_without_uvs() {
+    let d = setup();
+    for (args, what) in [
+        (vec!["mesh.obj", "-o", "p.obj", "--k", "1"], "k = 1"),
+        (vec!["mesh.obj", "-o", "p.obj", "--alpha", "0.6"], "alpha"),
+        (vec!["mesh.obj", "-o", "p.obj", "--size", "8"], "atlas size"),
+        (
+            vec![
+                "mesh.obj", "-o", "p.obj", "--gutter", "600", "--size", "1024",
+            ],
+            "gutter",
+        ),
+        (
+            vec!["mesh.obj", "-o", "p.obj", "--view-dir", "0,0,0"],
+            "view direction",
+        ),
+        (
+            vec!["mesh.obj", "-o", "p.obj", "--texel-density", "0"],
+            "texel density",
+        ),
+    ] {
+        let err = fails_cmd(d.path(), "param", &args);
+        assert!(err.contains(what), "{args:?}: {err}");
+    }
+    let err = fails_cmd(d.path(), "uv-report", &["mesh.obj"]);
+    assert!(err.contains("no texture coordinates"), "{err}");
 }

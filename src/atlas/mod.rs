@@ -28,8 +28,11 @@ pub struct FlattenOptions {
     /// halves flattened again. Default: 1.25.
     pub max_chart_stretch: f64,
     /// Without a view weight, a chart whose starting map already has L2 stretch at most this
-    /// is kept as it is (the minimisation would gain less than the difference). Default: 1.01.
+    /// is kept as it is (the minimisation would gain less than the difference). Default: 1.001.
     pub skip_below: f64,
+    /// A chart starting at most this stretched gets a short minimisation (60 L-BFGS
+    /// iterations, 2 sweeps). Default: 1.01.
+    pub light_below: f64,
 }
 
 impl Default for FlattenOptions {
@@ -38,7 +41,8 @@ impl Default for FlattenOptions {
             segment: SegmentOptions::default(),
             stretch: optimize::StretchOptions::default(),
             max_chart_stretch: 1.25,
-            skip_below: 1.01,
+            skip_below: 1.001,
+            light_below: 1.01,
         }
     }
 }
@@ -132,7 +136,14 @@ fn flatten_chart(
         // a factor of at most 1.5 on the meshes we measured (docs/decisions.md).
         let hopeless = start.l2 > 2.0 * opts.max_chart_stretch && chart.len() > 1;
         if !hopeless && (start.l2 > opts.skip_below || opts.stretch.view_dir.is_some()) {
-            optimize::optimize(mesh, &mut map, &opts.stretch);
+            // Nearly isometric starts converge in a few dozen iterations; the full budget goes
+            // to charts with real stretch to remove.
+            let mut so = opts.stretch;
+            if start.l2 <= opts.light_below {
+                so.iterations = so.iterations.min(60);
+                so.sweeps = so.sweeps.min(2);
+            }
+            optimize::optimize(mesh, &mut map, &so);
         }
         let s = param::stretch(mesh, std::slice::from_ref(&map));
         if chart.len() > 1 && (s.l2 > opts.max_chart_stretch || s.flipped > 0 || s.zero_area > 0) {
@@ -189,11 +200,16 @@ impl AtlasOptions {
         }
         if let Some(v) = s.view_dir {
             if !(v.iter().all(|x| x.is_finite()) && v.norm() > 0.0) {
-                return bad(format!("view direction {v:?} must be a non-zero finite vector"));
+                return bad(format!(
+                    "view direction {v:?} must be a non-zero finite vector"
+                ));
             }
         }
         if !(16..=32768).contains(&self.pack.size) {
-            return bad(format!("atlas size {} must lie in 16..=32768", self.pack.size));
+            return bad(format!(
+                "atlas size {} must lie in 16..=32768",
+                self.pack.size
+            ));
         }
         if 2 * self.pack.gutter + 1 >= self.pack.size {
             return bad(format!(
@@ -273,7 +289,9 @@ pub fn parameterize(mesh: &Mesh, opts: &AtlasOptions) -> crate::Result<(Mesh, At
 /// (UDIM pages from the integer part of u). Times are zero.
 pub fn measure(mesh: &Mesh, size: u32) -> crate::Result<AtlasReport> {
     let Some(uv) = &mesh.uv else {
-        return Err(crate::Error::Invalid("the mesh has no texture coordinates".into()));
+        return Err(crate::Error::Invalid(
+            "the mesh has no texture coordinates".into(),
+        ));
     };
     if !(1..=32768).contains(&size) {
         return Err(crate::Error::Invalid(format!(
@@ -316,7 +334,14 @@ fn measure_with(
         .iter()
         .map(|t| param::uv_area(t.map(|i| uv.coords[i as usize].cast::<f64>())))
         .collect();
-    let mut island = vec![0.0; face_chart.iter().map(|&c| c as usize + 1).max().unwrap_or(0)];
+    let mut island = vec![
+        0.0;
+        face_chart
+            .iter()
+            .map(|&c| c as usize + 1)
+            .max()
+            .unwrap_or(0)
+    ];
     for (a, &c) in signed.iter().zip(&face_chart) {
         island[c as usize] += a;
     }
@@ -350,7 +375,11 @@ fn measure_with(
         }
     }
     AtlasReport {
-        charts: face_chart.iter().map(|&c| c as usize + 1).max().unwrap_or(0),
+        charts: face_chart
+            .iter()
+            .map(|&c| c as usize + 1)
+            .max()
+            .unwrap_or(0),
         stretch,
         seam_ratio: if total > 0.0 { seam / total } else { 0.0 },
         utilisation: covered as f64 / cov.len() as f64,
@@ -543,9 +572,11 @@ mod tests {
 
     /// A hemisphere (latitude-longitude grid, pole at +z) with V on its pole (looking down,
     /// V = -z) and k = 1.2 stays one chart without flips, and triangles near the pole get more
-    /// texture area per unit 3D area than triangles at the rim. The issue asks for at least
-    /// twice; the minimisation reaches 1.19 (1.225 with 200+ sweeps): an open gap, recorded in
-    /// docs/decisions.md, so this asserts only what holds.
+    /// texture area per unit 3D area than triangles at the rim: 1.226 measured, against 1.259
+    /// for the exact optimum of the energy over radial maps (benches/hemisphere_optimum.py).
+    /// The issue's "at least twice" is beyond any one-chart map under this energy; across
+    /// charts the texel budget does give about sqrt(w) (see
+    /// `chart_budget_follows_the_view_weight`).
     #[test]
     fn hemisphere_with_view_on_its_pole_is_one_chart_with_texels_at_the_pole() {
         let (rings, sectors) = (16, 48);
@@ -563,12 +594,112 @@ mod tests {
         assert_eq!((s.flipped, s.zero_area), (0, 0));
         let ratio = texel_density(&mesh, &maps[0], |nz| nz > 0.9)
             / texel_density(&mesh, &maps[0], |nz| nz < 0.2);
-        eprintln!("pole/rim texture area per 3D area: {ratio:.3}");
         assert!(
-            ratio >= 1.15,
+            ratio >= 1.18,
             "texture area per 3D area, pole / rim = {ratio:.3}"
         );
         // Without the view weight it stays one chart too.
         assert_eq!(flatten_all(&mesh, &FlattenOptions::default()).len(), 1);
+    }
+
+    /// Texture area per unit 3D area of the faces `pick` selects, in the packed atlas.
+    fn packed_density(m: &Mesh, pick: impl Fn(usize) -> bool) -> f64 {
+        let uv = m.uv.as_ref().unwrap();
+        let (mut a2, mut a3) = (0.0, 0.0);
+        for (f, t) in uv.faces.iter().enumerate().filter(|(f, _)| pick(*f)) {
+            a2 += param::uv_area(t.map(|i| uv.coords[i as usize].cast::<f64>())).abs();
+            a3 += m.face_area(crate::mesh::FaceId(f as u32));
+        }
+        a2 / a3
+    }
+
+    /// Two flat disks, one facing the important view (<N, V> = -1, w = 5 with k = 1.2) and one
+    /// seen edge-on (w = 1/1.2): the packer gives the first sqrt(6) = 2.449 times the texture
+    /// area per unit 3D area (Sander's budget, c^2 proportional to sqrt(w) for isometric
+    /// charts); with `budget_by_energy` off, the same density.
+    #[test]
+    fn chart_budget_follows_the_view_weight() {
+        let disk = polar_grid(6, 24, |r, k| {
+            let a = std::f64::consts::TAU * k as f64 / 24.0;
+            Point3::new(r as f64 * a.cos(), r as f64 * a.sin(), 0.0)
+        });
+        let up = disk.face_normal_area(crate::mesh::FaceId(0)).z.signum();
+        let mut side = disk.clone();
+        for p in side.positions.iter_mut() {
+            *p = Point3::new(20.0, p.x, p.y);
+        }
+        let mesh = two_copies(&disk, Vector3::zeros());
+        let mut mesh = mesh;
+        let n = disk.num_vertices();
+        mesh.positions[n..].copy_from_slice(&side.positions);
+        let nf = disk.num_faces();
+        let mut opts = AtlasOptions::default();
+        opts.flatten.stretch.view_dir = Some(Vector3::new(0.0, 0.0, -up));
+        opts.flatten.stretch.k = 1.2;
+        opts.pack.size = 1024;
+        let (m, r) = parameterize(&mesh, &opts).unwrap();
+        assert_eq!((r.charts, r.overlapping_texels), (2, 0), "{r:?}");
+        let ratio = packed_density(&m, |f| f < nf) / packed_density(&m, |f| f >= nf);
+        assert!((ratio - 6f64.sqrt()).abs() < 0.02 * 6f64.sqrt(), "{ratio}");
+        opts.budget_by_energy = false;
+        let (m, _) = parameterize(&mesh, &opts).unwrap();
+        let ratio = packed_density(&m, |f| f < nf) / packed_density(&m, |f| f >= nf);
+        assert!((ratio - 1.0).abs() < 0.01, "{ratio}");
+    }
+
+    /// At a fixed texel density too high for one page, charts spread over UDIM pages: every
+    /// face lies inside one page, no texel of any page is covered twice, and uv-report's
+    /// measure of the result agrees with the packer's report.
+    #[test]
+    fn fixed_density_spreads_charts_over_pages() {
+        let (torus, _) = crate::sample::dented_torus(60, 24, (8, 8));
+        let mesh = two_copies(&torus, Vector3::new(4.0, 0.0, 0.0));
+        let mut opts = AtlasOptions::default();
+        opts.pack.size = 256;
+        let (_, one) = parameterize(&mesh, &opts).unwrap();
+        assert_eq!(one.pages, 1);
+        opts.pack.texels_per_unit = Some(one.texels_per_unit * 1.5);
+        let (m, r) = parameterize(&mesh, &opts).unwrap();
+        assert!(r.pages >= 2, "{} pages", r.pages);
+        assert_eq!(r.overlapping_texels, 0);
+        assert_eq!((r.stretch.flipped, r.stretch.zero_area), (0, 0));
+        let uv = m.uv.as_ref().unwrap();
+        for (f, t) in uv.faces.iter().enumerate() {
+            let p = pack::face_page(uv, f) as f32;
+            assert!(t
+                .iter()
+                .all(|&i| (p..=p + 1.0).contains(&uv.coords[i as usize].x)
+                    && (0.0..=1.0).contains(&uv.coords[i as usize].y)));
+        }
+        let again = measure(&m, 256).unwrap();
+        assert_eq!((again.charts, again.pages), (r.charts, r.pages));
+        assert!((again.utilisation - r.utilisation).abs() < 1e-12);
+        assert!((again.seam_ratio - r.seam_ratio).abs() < 1e-9);
+        // A chart larger than a page at the requested density is an error, not a panic.
+        opts.pack.texels_per_unit = Some(one.texels_per_unit * 100.0);
+        assert!(parameterize(&mesh, &opts).is_err());
+    }
+
+    /// Out-of-range options are refused with a message naming the option.
+    #[test]
+    fn bad_options_are_errors() {
+        let (torus, _) = crate::sample::dented_torus(30, 12, (4, 4));
+        type Case = (fn(&mut AtlasOptions), &'static str);
+        let cases: [Case; 5] = [
+            (|o| o.flatten.stretch.k = 1.0, "k = 1"),
+            (|o| o.flatten.stretch.alpha = 0.7, "alpha"),
+            (
+                |o| o.flatten.stretch.view_dir = Some(Vector3::zeros()),
+                "view direction",
+            ),
+            (|o| o.pack.size = 8, "atlas size"),
+            (|o| o.pack.texels_per_unit = Some(-1.0), "texel density"),
+        ];
+        for (set, what) in cases {
+            let mut o = AtlasOptions::default();
+            set(&mut o);
+            let e = parameterize(&torus, &o).unwrap_err().to_string();
+            assert!(e.contains(what), "{e}");
+        }
     }
 }

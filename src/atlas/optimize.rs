@@ -50,7 +50,10 @@ impl Default for StretchOptions {
 /// The paper's visual importance of a triangle with (any-length) normal `n`:
 /// `w = 1 / (<N, V> + k)`, or 1 without a view direction.
 pub fn weight(n: Vector3<f64>, opts: &StretchOptions) -> f64 {
-    match (opts.view_dir.and_then(|v| v.try_normalize(0.0)), n.try_normalize(0.0)) {
+    match (
+        opts.view_dir.and_then(|v| v.try_normalize(0.0)),
+        n.try_normalize(0.0),
+    ) {
         (Some(v), Some(n)) => 1.0 / (n.dot(&v) + opts.k),
         // A degenerate triangle has no facing: it counts as seen edge-on.
         (Some(_), None) => 1.0 / opts.k,
@@ -82,7 +85,13 @@ pub fn chart_scales(mesh: &Mesh, maps: &[ChartMap], opts: &StretchOptions) -> Ve
         .collect();
     let c: Vec<f64> = raw
         .iter()
-        .map(|&(e, a)| if e > 0.0 && a > 0.0 { (e / a).powf(0.25) } else { 1.0 })
+        .map(|&(e, a)| {
+            if e > 0.0 && a > 0.0 {
+                (e / a).powf(0.25)
+            } else {
+                1.0
+            }
+        })
         .collect();
     let (num, den) = raw
         .iter()
@@ -216,7 +225,10 @@ fn vertex_gradient(
     let mut g = Vector2::zeros();
     for &fi in incident {
         let f = &faces[fi];
-        let i = f.v.iter().position(|&u| u == v).expect("v is a corner of its faces");
+        let i =
+            f.v.iter()
+                .position(|&u| u == v)
+                .expect("v is a corner of its faces");
         let (dterm, da) = face_gradient(f, f.v.map(|u| uv[u]))[i];
         g += dterm * sa + da * sl;
     }
@@ -297,7 +309,7 @@ fn lbfgs(faces: &[Face], local: &[[u32; 3]], uv: &mut [Vector2<f64>], iterations
             }
         }
         let mut slope = dot(&g, &d);
-        if !(slope < 0.0) {
+        if slope.is_nan() || slope >= 0.0 {
             hist.clear();
             d = g.iter().map(|x| -x).collect();
             slope = -dot(&g, &g);
@@ -347,9 +359,7 @@ fn lbfgs(faces: &[Face], local: &[[u32; 3]], uv: &mut [Vector2<f64>], iterations
             }
             if let Some((nl, na)) = energy_terms(faces, &trial) {
                 let ne = nl * na;
-                if ne <= e + 1e-4 * step * slope
-                    && !super::param::edges_cross(&border, &trial)
-                {
+                if ne <= e + 1e-4 * step * slope && !super::param::edges_cross(&border, &trial) {
                     accepted = Some((nl, na, ne));
                     break;
                 }
@@ -607,7 +617,11 @@ mod tests {
             b[0][d] -= h;
             let (ea, eb) = (energy(&a), energy(&b));
             let fd = (ea.0 * ea.1 - eb.0 * eb.1) / (2.0 * h);
-            assert!((fd - g[d]).abs() < 1e-6 * fd.abs().max(1.0), "{d}: {fd} vs {}", g[d]);
+            assert!(
+                (fd - g[d]).abs() < 1e-6 * fd.abs().max(1.0),
+                "{d}: {fd} vs {}",
+                g[d]
+            );
         }
     }
 }

@@ -308,7 +308,10 @@ impl Page {
             .collect();
         let mut first = 0;
         for y in 0..=n - m.h {
-            if rows.iter().any(|&(r, _, need)| (self.max_free[y + r] as usize) < need) {
+            if rows
+                .iter()
+                .any(|&(r, _, need)| (self.max_free[y + r] as usize) < need)
+            {
                 continue;
             }
             let mut x = 0;
@@ -379,6 +382,9 @@ impl Page {
     }
 }
 
+/// A chart ready to pack: UVs in texels and faces in local vertex indices.
+type ScaledChart<'a> = (Vec<Vector2<f64>>, &'a [[u32; 3]]);
+
 /// Where a chart went.
 #[derive(Debug, Clone, Copy)]
 struct Placement {
@@ -395,7 +401,7 @@ const ROTATIONS: [u8; 4] = [0, 1, 2, 3];
 /// Packs the charts (UVs in texels already) into pages of `size`; with `one_page`, fails as soon
 /// as a chart does not fit the first page. `None` when it fails.
 fn attempt(
-    charts: &[(Vec<Vector2<f64>>, &[[u32; 3]])],
+    charts: &[ScaledChart],
     order: &[usize],
     size: usize,
     gutter: usize,
@@ -514,13 +520,17 @@ pub fn pack(
     let chart_area: Vec<f64> = charts
         .iter()
         .map(|c| {
-            let lo = c.uv.iter().fold(Vector2::repeat(f64::INFINITY), |a, p| a.inf(p));
-            let hi = c.uv.iter().fold(Vector2::repeat(f64::NEG_INFINITY), |a, p| a.sup(p));
+            let lo =
+                c.uv.iter()
+                    .fold(Vector2::repeat(f64::INFINITY), |a, p| a.inf(p));
+            let hi =
+                c.uv.iter()
+                    .fold(Vector2::repeat(f64::NEG_INFINITY), |a, p| a.sup(p));
             (hi - lo).x * (hi - lo).y
         })
         .collect();
     order.sort_by(|&a, &b| chart_area[b].total_cmp(&chart_area[a]).then(a.cmp(&b)));
-    let scaled = |s: f64| -> Vec<(Vec<Vector2<f64>>, &[[u32; 3]])> {
+    let scaled = |s: f64| -> Vec<ScaledChart> {
         charts
             .iter()
             .map(|c| (c.uv.iter().map(|p| p * s).collect(), c.faces.as_slice()))
@@ -550,7 +560,10 @@ pub fn pack(
             // costs far more than one that fails early, and coarse packings are 4-16 times
             // cheaper; the coarse footprints are larger, so the coarse answer nearly always
             // fits at full size.
-            let levels = (0..=2).rev().filter(|&l| l == 0 || size >> l >= 512).collect::<Vec<u32>>();
+            let levels = (0..=2)
+                .rev()
+                .filter(|&l| l == 0 || size >> l >= 512)
+                .collect::<Vec<u32>>();
             let at = |level: u32, s: f64| {
                 let k = (1u32 << level) as f64;
                 attempt(
@@ -674,7 +687,11 @@ pub fn raster_triangle(
 
 /// The UDIM page (0 for tile 1001) of face `f`: the integer part of its centroid's u.
 pub fn face_page(uv: &UvMap, f: usize) -> u32 {
-    let u: f32 = uv.faces[f].iter().map(|&i| uv.coords[i as usize].x).sum::<f32>() / 3.0;
+    let u: f32 = uv.faces[f]
+        .iter()
+        .map(|&i| uv.coords[i as usize].x)
+        .sum::<f32>()
+        / 3.0;
     u.floor().max(0.0) as u32
 }
 

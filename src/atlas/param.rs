@@ -101,12 +101,15 @@ pub struct Stretch {
 
 /// Stretch of `maps` taken together (one normalisation for all of them).
 pub fn stretch(mesh: &Mesh, maps: &[ChartMap]) -> Stretch {
-    stretch_of(maps.iter().flat_map(|m| {
-        m.face_ids
-            .iter()
-            .zip(&m.faces)
-            .map(|(f, lf)| (*f, lf.map(|i| m.uv[i as usize])))
-    }), mesh)
+    stretch_of(
+        maps.iter().flat_map(|m| {
+            m.face_ids
+                .iter()
+                .zip(&m.faces)
+                .map(|(f, lf)| (*f, lf.map(|i| m.uv[i as usize])))
+        }),
+        mesh,
+    )
 }
 
 /// Stretch of a mesh's per-corner UVs (one normalisation for the whole atlas, all pages).
@@ -442,12 +445,14 @@ pub(crate) fn edges_cross(edges: &[(u32, u32)], uv: &[Vector2<f64>]) -> bool {
     }
     // Bucket the edges in a uniform grid of about one edge per cell, then test only pairs that
     // share a cell: linear in the border length for the borders charts have.
-    let lo = edges
-        .iter()
-        .fold(Vector2::repeat(f64::INFINITY), |a, e| a.inf(&uv[e.0 as usize]));
+    let lo = edges.iter().fold(Vector2::repeat(f64::INFINITY), |a, e| {
+        a.inf(&uv[e.0 as usize])
+    });
     let hi = edges
         .iter()
-        .fold(Vector2::repeat(f64::NEG_INFINITY), |a, e| a.sup(&uv[e.0 as usize]));
+        .fold(Vector2::repeat(f64::NEG_INFINITY), |a, e| {
+            a.sup(&uv[e.0 as usize])
+        });
     let cells = (edges.len() as f64).sqrt().ceil().max(1.0);
     let ext = (hi - lo).max().max(1e-300);
     let cell = ext / cells;

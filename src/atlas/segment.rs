@@ -189,15 +189,15 @@ pub fn segment_with(mesh: &Mesh, adj: &Adjacency, opts: &SegmentOptions) -> Char
     let mut charts = Vec::with_capacity(grown.len());
     let mut todo: Vec<Vec<FaceId>> = grown.into_iter().rev().collect();
     while let Some(c) = todo.pop() {
-        if is_disk(mesh, &adj, &c) {
+        if is_disk(mesh, adj, &c) {
             charts.push(c);
         } else {
-            let (a, b) = split(&adj, &c);
+            let (a, b) = split(adj, &c);
             todo.push(b);
             todo.push(a);
         }
     }
-    let charts = merge_small(mesh, &adj, charts, opts.min_faces);
+    let charts = merge_small(mesh, adj, charts, opts.min_faces);
     let mut face_chart = vec![0u32; mesh.num_faces()];
     for (i, c) in charts.iter().enumerate() {
         for f in c {
@@ -410,7 +410,6 @@ mod tests {
         );
         c
     }
-
 
     #[test]
     fn sphere_torus_components_holes_and_non_manifold_all_give_disks() {
