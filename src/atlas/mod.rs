@@ -1,9 +1,9 @@
-//! Stage 1, the atlas (issue 4, in progress). Built: chart segmentation into disks
-//! ([`segment`]), a flip-free start per chart (projection, LSCM, or mean-value embedding) with
-//! Sander's stretch measures ([`param`]), the paper's view-weighted L2 stretch minimisation with
-//! the shape barrier ([`optimize`]), and [`flatten_all`], which splits charts whose stretch stays
-//! too high. To come: packing into atlas pages, `scantex param`, keeping a whole disk-shaped
-//! mesh as one chart when its stretch allows.
+//! Stage 1, the atlas: chart segmentation into disks ([`segment`]), a flip-free start per chart
+//! (LSCM, projection or mean-value embedding) with Sander's stretch measures ([`param`]), the
+//! paper's view-weighted L2 stretch minimisation with the shape barrier ([`optimize`]),
+//! [`flatten_all`], which splits charts whose stretch stays too high, and packing of the charts
+//! into atlas pages by rasterised footprints ([`pack`]). [`parameterize`] runs it all;
+//! [`measure`] reports on any mesh's existing UVs.
 
 pub mod optimize;
 pub mod pack;
