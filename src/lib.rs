@@ -9,13 +9,14 @@
 //! | stage | function | in -> out |
 //! |---|---|---|
 //! | 0. load | [`scene::Scene::load`] | [`scene::SceneSpec`] -> [`mesh::Mesh`], [`camera::colmap::Reconstruction`], [`scene::Photo`]s (lazily decoded) |
-//! | 1. atlas *(planned)* | `atlas::parameterize(&Mesh, &[Photo], &AtlasOptions)` | -> `Atlas` (charts, per-corner UVs, pages) |
-//! | 2. bind *(planned)* | `bind::bind(&Mesh, &[Photo], &BindOptions)` | -> `Binding` (valid photos per vertex) |
-//! | 3. resample *(planned)* | `resample::resample(&Mesh, &Atlas, &Binding, &[Photo], ..)` | -> `Layers` (per-photo atlas layers, triangle classes) |
+//! | 1. atlas | [`atlas::parameterize`] | [`mesh::Mesh`] + view direction -> mesh with per-corner UVs, [`atlas::AtlasReport`] |
+//! | 2. bind | [`bind::bind`] | [`mesh::Mesh`] + normals + [`scene::Photo`]s -> [`bind::Binding`] (valid views per vertex) |
+//! | 3. resample | [`resample::resample`] | [`mesh::Mesh`] + [`bind::Binding`] + photos -> [`resample::Resampled`] (atlas colour, texel sources, triangle classes) |
 //! | 4. merge *(planned)* | `merge::merge(&Layers, &Masks, &MergeOptions)` | -> `Texture` + unseen mask |
 //! | 5. restore *(planned)* | `restore::inpaint(&Texture, &Mask, &RestoreOptions)` | -> `Texture` (every texel filled) |
 //! | 6. synthesize *(planned)* | `synth::fill_surface(&Mesh, &Atlas, &Texture, ..)` | -> `Texture` (large unseen regions) |
 //! | eval | [`eval::evaluate`] | textured [`mesh::Mesh`] + held-out [`scene::Photo`]s -> [`eval::EvalReport`] (PSNR, SSIM, 1-NCC, completeness) |
+//! | all | [`pipeline::texture`] | stages 1-3 with one [`pipeline::TextureOptions`] -> [`pipeline::Textured`] + [`pipeline::TextureReport`] |
 //! | out | [`io::write_mesh`] | [`mesh::Mesh`] + [`io::EncodedTexture`] -> OBJ/MTL/PNG, PLY, GLB |
 //!
 //! Conventions: COLMAP's camera conventions throughout ([`camera`]); texture coordinates with
@@ -23,14 +24,19 @@
 //! the line, byte or element at fault.
 
 pub mod atlas;
+pub mod bind;
 pub mod bvh;
 pub mod camera;
+pub mod depth;
 pub mod error;
 pub mod eval;
 pub mod info;
 pub mod io;
 pub mod mesh;
+pub mod pipeline;
+pub mod progress;
 pub mod render;
+pub mod resample;
 pub mod sample;
 pub mod scene;
 

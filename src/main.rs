@@ -73,6 +73,70 @@ enum Command {
         #[arg(long)]
         json: Option<PathBuf>,
     },
+    /// Texture a scanned mesh from its calibrated photographs: atlas, binding, resampling.
+    /// Writes <out>/model.obj (+ .mtl and the atlas), model.glb and report.json.
+    Texture {
+        #[command(flatten)]
+        scene: SceneArgs,
+        /// Output directory.
+        #[arg(short, long)]
+        out: PathBuf,
+        /// Atlas size in texels.
+        #[arg(long, default_value_t = 4096)]
+        size: u32,
+        /// Gutter between charts, in texels.
+        #[arg(long, default_value_t = 4)]
+        gutter: u32,
+        /// paper: the paper's binding and resampling as written; robust: per-texel occlusion,
+        /// projected-area weights, photo-consistency rejection.
+        #[arg(long, default_value = "robust")]
+        method: scantex::bind::Method,
+        /// Atlas file format beside the OBJ: png, png16 or exr (the GLB always embeds PNG).
+        #[arg(long, default_value = "png")]
+        format: scantex::pipeline::TextureFormat,
+        /// Important view direction V for the atlas (from the eye towards the object), x,y,z.
+        /// Default: the photographs' mean viewing direction, when they have one.
+        #[arg(long, value_parser = parse_vec3, conflicts_with = "no_view_weight")]
+        view_dir: Option<[f64; 3]>,
+        /// No visual-importance weight in the atlas.
+        #[arg(long)]
+        no_view_weight: bool,
+        /// k in the visual importance w = 1 / (<N, V> + k).
+        #[arg(long, default_value_t = 1.5)]
+        k: f64,
+        /// Smallest height/base ratio of a UV triangle (shape barrier).
+        #[arg(long, default_value_t = 0.05)]
+        alpha: f64,
+        /// Background colour for the background test: auto (estimated per photograph), off,
+        /// or r,g,b in [0, 1]. Masks, when the scene has them, decide instead.
+        #[arg(long, default_value = "auto")]
+        background: String,
+        /// RGB distance below which a vertex's sample counts as background.
+        #[arg(long, default_value_t = 0.06)]
+        background_threshold: f32,
+        /// Robust method: photo-consistency check per face, per vertex, or off.
+        #[arg(long, default_value = "face")]
+        consistency: scantex::bind::Consistency,
+        /// Robust method: views farther than this (RGB distance) from the median of a
+        /// vertex's views, and than 3 robust deviations, are dropped.
+        #[arg(long, default_value_t = 0.12)]
+        consistency_threshold: f32,
+        /// Robust method: exponent on the projected-area view weight.
+        #[arg(long, default_value_t = 1.0)]
+        weight_power: f64,
+        /// Longest side of the per-photograph depth map, pixels.
+        #[arg(long, default_value_t = 2048)]
+        depth_resolution: u32,
+        /// Gutter texels filled by extending chart colours.
+        #[arg(long, default_value_t = 8)]
+        gutter_fill: u32,
+        /// Write the classification map, coverage map and atlas layout here.
+        #[arg(long)]
+        debug_dir: Option<PathBuf>,
+        /// No progress bars.
+        #[arg(short, long)]
+        quiet: bool,
+    },
     /// Give a mesh texture coordinates: charts, stretch minimisation, packing (stage 1).
     Param {
         /// Input mesh (.obj, .ply, .gltf, .glb); existing UVs are ignored.
@@ -255,6 +319,84 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
                 let s = serde_json::to_string_pretty(&report).expect("report serialises");
                 scantex::io::write_atomic(&p, s.as_bytes())?;
             }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Texture {
+            scene,
+            out,
+            size,
+            gutter,
+            method,
+            format,
+            view_dir,
+            no_view_weight,
+            k,
+            alpha,
+            background,
+            background_threshold,
+            consistency,
+            consistency_threshold,
+            weight_power,
+            depth_resolution,
+            gutter_fill,
+            debug_dir,
+            quiet,
+        } => {
+            use scantex::pipeline::{TextureOptions, ViewWeight};
+            let mut opts = TextureOptions::default();
+            opts.atlas.pack.size = size;
+            opts.atlas.pack.gutter = gutter;
+            opts.atlas.flatten.stretch.k = k;
+            opts.atlas.flatten.stretch.alpha = alpha;
+            opts.view_weight = match (view_dir, no_view_weight) {
+                (_, true) => ViewWeight::Off,
+                (Some(d), false) => ViewWeight::Direction(d),
+                (None, false) => ViewWeight::MeanPhotoDirection,
+            };
+            opts.bind.method = method;
+            opts.bind.background = match background.as_str() {
+                "auto" => scantex::bind::Background::Estimate,
+                "off" => scantex::bind::Background::Off,
+                rgb => scantex::bind::Background::Color(
+                    parse_vec3(rgb)
+                        .map_err(scantex::Error::Invalid)?
+                        .map(|v| v as f32),
+                ),
+            };
+            opts.bind.background_threshold = background_threshold;
+            opts.bind.consistency = consistency;
+            opts.bind.consistency_threshold = consistency_threshold;
+            opts.bind.weight_power = weight_power;
+            opts.bind.depth_resolution = depth_resolution;
+            opts.resample.gutter_fill = gutter_fill;
+            opts.format = format;
+            let progress: Box<dyn scantex::progress::Progress> = if quiet {
+                Box::new(scantex::progress::Silent)
+            } else {
+                Box::new(scantex::progress::Bars::default())
+            };
+            let result = scantex::pipeline::texture_scene(
+                &scene.spec(),
+                &opts,
+                &out,
+                debug_dir.as_deref(),
+                progress.as_ref(),
+            )?;
+            let r = &result.report;
+            let total: f64 = r.stages.iter().map(|s| s.seconds).sum();
+            eprintln!(
+                "textured {} faces from {} photographs in {:.1} s: {} of {} vertices bound; \
+                 triangles {} green, {} blue, {} red; wrote {}",
+                r.faces,
+                r.photos,
+                total,
+                r.vertices_bound,
+                r.vertices,
+                r.resample.green,
+                r.resample.blue,
+                r.resample.red,
+                out.display()
+            );
             Ok(ExitCode::SUCCESS)
         }
         Command::Param {

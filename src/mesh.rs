@@ -105,6 +105,22 @@ impl Mesh {
         0.5 * self.face_normal_area(f).norm()
     }
 
+    /// Mean length of the faces' edges (each interior edge counted twice); 0 without faces.
+    pub fn mean_edge_length(&self) -> f64 {
+        if self.faces.is_empty() {
+            return 0.0;
+        }
+        let total: f64 = self
+            .faces
+            .iter()
+            .map(|f| {
+                let p = |k: usize| self.positions[f[k].idx()];
+                (p(1) - p(0)).norm() + (p(2) - p(1)).norm() + (p(0) - p(2)).norm()
+            })
+            .sum();
+        total / (3 * self.faces.len()) as f64
+    }
+
     /// Checks what every reader must guarantee and drops degenerate faces: at least one face,
     /// finite positions, indices in range. `path` names the file in errors.
     pub fn validate(&mut self, path: &Path) -> Result<LoadReport> {

@@ -304,6 +304,15 @@ pub fn write_glb(
     mesh: &Mesh,
     texture: Option<&EncodedTexture>,
 ) -> Result<()> {
+    if let Some(t) = texture {
+        if t.mime != "image/png" && t.mime != "image/jpeg" {
+            return Err(Error::at_element(
+                path,
+                "texture",
+                format!("glTF embeds PNG or JPEG textures only, not {}", t.mime),
+            ));
+        }
+    }
     // One output vertex per distinct (position, uv) pair.
     let mut remap: HashMap<(u32, u32), u32> = HashMap::new();
     let mut src: Vec<(u32, u32)> = Vec::new();

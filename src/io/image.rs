@@ -65,3 +65,19 @@ pub fn encode_png(img: &DynamicImage) -> Result<EncodedTexture> {
         mime: "image/png",
     })
 }
+
+/// Encodes float RGB as OpenEXR (32-bit float channels), for the OBJ's texture file only:
+/// glTF cannot carry EXR.
+pub fn encode_exr(img: &Rgb32FImage) -> Result<EncodedTexture> {
+    let mut bytes = Vec::new();
+    DynamicImage::ImageRgb32F(img.clone())
+        .write_to(
+            &mut std::io::Cursor::new(&mut bytes),
+            image::ImageFormat::OpenExr,
+        )
+        .map_err(|e| Error::Invalid(format!("cannot encode EXR: {e}")))?;
+    Ok(EncodedTexture {
+        bytes,
+        mime: "image/x-exr",
+    })
+}

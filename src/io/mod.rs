@@ -122,22 +122,30 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     s.commit()
 }
 
+/// Peak resident memory of this process so far, bytes (Linux `VmHWM`; `None` elsewhere).
+pub fn peak_memory() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
 /// An encoded texture image ready to be written beside or inside a mesh.
 #[derive(Debug, Clone, PartialEq)]
 pub struct EncodedTexture {
-    /// The encoded bytes (PNG or JPEG: the only images glTF allows).
+    /// The encoded bytes (PNG or JPEG, the only images glTF allows; EXR for OBJ only).
     pub bytes: Vec<u8>,
-    /// MIME type, `image/png` or `image/jpeg`.
+    /// MIME type, `image/png`, `image/jpeg` or `image/x-exr`.
     pub mime: &'static str,
 }
 
 impl EncodedTexture {
     /// File extension matching the MIME type.
     pub fn extension(&self) -> &'static str {
-        if self.mime == "image/jpeg" {
-            "jpg"
-        } else {
-            "png"
+        match self.mime {
+            "image/jpeg" => "jpg",
+            "image/x-exr" => "exr",
+            _ => "png",
         }
     }
 }

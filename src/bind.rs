@@ -1,0 +1,696 @@
+//! Stage 2, binding (paper section 4.1, `docs/method.md` section 2): for every vertex, the
+//! photographs that may colour it, each with the vertex's colour in that photograph and a
+//! weight. In: a mesh, its vertex normals, the registered photographs. Out: [`Binding`].
+//!
+//! A photograph is valid for a vertex when the vertex projects inside it (through the camera's
+//! distortion), its normal faces the camera, nothing occludes it, it is not a silhouette vertex
+//! (a fan triangle faces away), and it does not show background there (masks when the scene
+//! has them; otherwise the paper's median-filtered, Gaussian-weighted comparison with the
+//! background colour, estimated per photograph). [`Method::Robust`] adds a photo-consistency
+//! check across the valid photographs of each vertex and weights that prefer close, frontal
+//! views; [`Method::Paper`] is the paper as written.
+//!
+//! Photographs are decoded one at a time (the next one decodes while the current one is
+//! processed), so memory does not grow with their number.
+
+use crate::depth::{focal_px, DepthMap};
+use crate::error::{Error, Result};
+use crate::mesh::{FaceId, Mesh};
+use crate::progress::Progress;
+use crate::scene::Photo;
+use image::{GrayImage, Rgb32FImage};
+use nalgebra::{Point2, Vector3};
+use rayon::prelude::*;
+use serde::Serialize;
+
+/// Which variant of binding and resampling runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// The paper as written: per-vertex visibility (segment to the camera against a BVH), the
+    /// mean of the common photographs weighted by `<N, V>`, bilinear photo samples.
+    Paper,
+    /// Per-texel occlusion from a depth map per photograph, weights by the texel's projected
+    /// area in the photograph (closer and more frontal views count more), photo-consistency
+    /// rejection of outlying views per vertex, mip-mapped photo samples. Default.
+    #[default]
+    Robust,
+}
+
+impl std::str::FromStr for Method {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "paper" => Ok(Method::Paper),
+            "robust" => Ok(Method::Robust),
+            _ => Err(Error::Invalid(format!(
+                "unknown method '{s}' (expected paper or robust)"
+            ))),
+        }
+    }
+}
+
+/// How the background colour for the paper's background test is found.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum Background {
+    /// The median colour of the pixels the mesh does not cover, per photograph; the test is
+    /// skipped for a photograph whose uncovered pixels are not uniform (their median distance
+    /// from that colour exceeds [`BindOptions::background_max_spread`]). Default.
+    #[default]
+    Estimate,
+    /// One colour (RGB in [0, 1]) for every photograph.
+    Color([f32; 3]),
+    /// No background test.
+    Off,
+}
+
+/// Where the robust method's photo-consistency check applies.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Consistency {
+    /// Per face: the face's colour in each common photograph (mean of its corners' samples)
+    /// against the median over those photographs; an outlying photograph stops colouring that
+    /// face only. Default.
+    #[default]
+    Face,
+    /// Per vertex: an outlying photograph is dropped from the vertex's valid set (and so from
+    /// every face around it).
+    Vertex,
+    /// No check.
+    Off,
+}
+
+impl std::str::FromStr for Consistency {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "face" => Ok(Consistency::Face),
+            "vertex" => Ok(Consistency::Vertex),
+            "off" => Ok(Consistency::Off),
+            _ => Err(Error::Invalid(format!(
+                "unknown consistency check '{s}' (expected face, vertex or off)"
+            ))),
+        }
+    }
+}
+
+/// Options for [`bind`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BindOptions {
+    /// Paper or robust. Default: [`Method::Robust`].
+    pub method: Method,
+    /// Smallest cosine between a vertex normal and the direction to the camera for the vertex
+    /// to face it. Default: 0.0 (the paper: facing at all).
+    pub min_cos: f64,
+    /// Background colour. Default: [`Background::Estimate`].
+    pub background: Background,
+    /// RGB distance (values in [0, 1]) below which a vertex's filtered sample counts as
+    /// background. Default: 0.06.
+    pub background_threshold: f32,
+    /// Estimated backgrounds whose pixels spread more than this (median RGB distance from
+    /// their median colour) are not uniform and are not used. Default: 0.05.
+    pub background_max_spread: f32,
+    /// Robust method only: the background test applies only within this many photo pixels of
+    /// the mesh's outline in the photograph, where registration errors put background under
+    /// the surface; elsewhere a dark object on a dark background would lose its vertices.
+    /// Default: 8.
+    pub background_reach: u32,
+    /// Robust method only: where the photo-consistency check applies. Default: per face.
+    pub consistency: Consistency,
+    /// Robust method only: a view whose colour is farther than this (RGB distance) and than 3
+    /// robust standard deviations from the median of the views is dropped (moving people,
+    /// highlights). Needs at least 3 views. Default: 0.12.
+    pub consistency_threshold: f32,
+    /// Robust method only: exponent on the projected-area weight; higher favours the single
+    /// best view (sharper, less blur from misregistration). Default: 1.0.
+    pub weight_power: f64,
+    /// Longest side of the per-photograph depth map, pixels. Default: 2048.
+    pub depth_resolution: u32,
+}
+
+impl Default for BindOptions {
+    fn default() -> Self {
+        BindOptions {
+            method: Method::Robust,
+            min_cos: 0.0,
+            background: Background::Estimate,
+            background_threshold: 0.06,
+            background_max_spread: 0.05,
+            background_reach: 8,
+            consistency: Consistency::Face,
+            consistency_threshold: 0.12,
+            weight_power: 1.0,
+            depth_resolution: 2048,
+        }
+    }
+}
+
+impl BindOptions {
+    /// Checks ranges; the error names the option.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(Error::Invalid(m));
+        if !(-1.0..1.0).contains(&self.min_cos) {
+            return bad(format!("min-cos {} must lie in [-1, 1)", self.min_cos));
+        }
+        if !(self.background_threshold >= 0.0 && self.background_threshold.is_finite()) {
+            return bad(format!(
+                "background threshold {} must be a non-negative number",
+                self.background_threshold
+            ));
+        }
+        if let Background::Color(c) = self.background {
+            if !c.iter().all(|v| (0.0..=1.0).contains(v)) {
+                return bad(format!("background colour {c:?} must lie in [0, 1]"));
+            }
+        }
+        if !(self.consistency_threshold >= 0.0 && self.consistency_threshold.is_finite()) {
+            return bad(format!(
+                "consistency threshold {} must be a non-negative number",
+                self.consistency_threshold
+            ));
+        }
+        if !(0.0..=8.0).contains(&self.weight_power) {
+            return bad(format!(
+                "weight power {} must lie in [0, 8]",
+                self.weight_power
+            ));
+        }
+        if !(64..=16384).contains(&self.depth_resolution) {
+            return bad(format!(
+                "depth resolution {} must lie in 64..=16384",
+                self.depth_resolution
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// One valid photograph of one vertex.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ViewSample {
+    /// Index into the photograph list given to [`bind`].
+    pub photo: u32,
+    /// The vertex's colour in that photograph (3x3 Gaussian-weighted sample), RGB in [0, 1].
+    pub color: [f32; 3],
+    /// The view's weight for this vertex (`<N, V>` for the paper; projected area for robust).
+    pub weight: f32,
+}
+
+/// Why vertex-photograph pairs were rejected, counted over all pairs.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct Rejections {
+    /// Projects outside the image or behind the camera.
+    pub outside: u64,
+    /// Normal faces away from the camera.
+    pub facing: u64,
+    /// A fan triangle faces away (silhouette vertex).
+    pub silhouette: u64,
+    /// Something nearer hides it.
+    pub occluded: u64,
+    /// The mask says background.
+    pub mask: u64,
+    /// The filtered colour matches the background colour.
+    pub background: u64,
+    /// Disagrees with the vertex's other views (robust only).
+    pub inconsistent: u64,
+    /// Valid pairs kept.
+    pub kept: u64,
+}
+
+impl Rejections {
+    fn add(&mut self, o: &Rejections) {
+        self.outside += o.outside;
+        self.facing += o.facing;
+        self.silhouette += o.silhouette;
+        self.occluded += o.occluded;
+        self.mask += o.mask;
+        self.background += o.background;
+        self.inconsistent += o.inconsistent;
+        self.kept += o.kept;
+    }
+}
+
+/// What each photograph contributed to the binding.
+#[derive(Debug, Clone, Serialize)]
+pub struct PhotoBinding {
+    /// Photograph name.
+    pub name: String,
+    /// Vertices it is valid for.
+    pub vertices: u64,
+    /// Background colour used for it, if any.
+    pub background: Option<[f32; 3]>,
+}
+
+/// The valid photographs of every vertex, in compressed rows (`samples[offsets[v]..offsets[v +
+/// 1]]`, in photograph order).
+#[derive(Debug, Clone)]
+pub struct Binding {
+    /// Row starts, one per vertex plus one.
+    pub offsets: Vec<u32>,
+    /// Valid views, grouped by vertex.
+    pub samples: Vec<ViewSample>,
+    /// Number of photographs bound against.
+    pub photos: usize,
+    /// Rejection counts.
+    pub rejections: Rejections,
+    /// Per-photograph summary.
+    pub per_photo: Vec<PhotoBinding>,
+    /// The options the binding was made with (resampling follows the same method, depth
+    /// resolution and consistency rule).
+    pub options: BindOptions,
+}
+
+impl Binding {
+    /// Valid views of vertex `v`.
+    pub fn views(&self, v: usize) -> &[ViewSample] {
+        &self.samples[self.offsets[v] as usize..self.offsets[v + 1] as usize]
+    }
+
+    /// Vertices with at least one valid view.
+    pub fn bound_vertices(&self) -> usize {
+        self.offsets.windows(2).filter(|w| w[1] > w[0]).count()
+    }
+
+    /// Weighted mean colour of each vertex over its valid views (`None` when unbound).
+    pub fn vertex_colors(&self) -> Vec<Option<[f32; 3]>> {
+        (0..self.offsets.len() - 1)
+            .map(|v| {
+                let vs = self.views(v);
+                let w: f32 = vs.iter().map(|s| s.weight).sum();
+                if vs.is_empty() {
+                    None
+                } else if w > 0.0 {
+                    Some(std::array::from_fn(|k| {
+                        vs.iter().map(|s| s.color[k] * s.weight).sum::<f32>() / w
+                    }))
+                } else {
+                    Some(std::array::from_fn(|k| {
+                        vs.iter().map(|s| s.color[k]).sum::<f32>() / vs.len() as f32
+                    }))
+                }
+            })
+            .collect()
+    }
+}
+
+/// Faces around each vertex, compressed rows.
+pub(crate) struct VertexFaces {
+    offsets: Vec<u32>,
+    faces: Vec<u32>,
+}
+
+impl VertexFaces {
+    pub(crate) fn new(mesh: &Mesh) -> Self {
+        let nv = mesh.num_vertices();
+        let mut offsets = vec![0u32; nv + 1];
+        for f in &mesh.faces {
+            for v in f {
+                offsets[v.idx() + 1] += 1;
+            }
+        }
+        for i in 0..nv {
+            offsets[i + 1] += offsets[i];
+        }
+        let mut fill = offsets.clone();
+        let mut faces = vec![0u32; offsets[nv] as usize];
+        for (fi, f) in mesh.faces.iter().enumerate() {
+            for v in f {
+                faces[fill[v.idx()] as usize] = fi as u32;
+                fill[v.idx()] += 1;
+            }
+        }
+        VertexFaces { offsets, faces }
+    }
+
+    pub(crate) fn of(&self, v: usize) -> &[u32] {
+        &self.faces[self.offsets[v] as usize..self.offsets[v + 1] as usize]
+    }
+}
+
+/// A decoded photograph with its mask.
+struct Decoded {
+    rgb: Rgb32FImage,
+    mask: Option<GrayImage>,
+}
+
+fn decode(p: &Photo) -> Result<Decoded> {
+    Ok(Decoded {
+        rgb: p.load()?,
+        mask: p.load_mask()?,
+    })
+}
+
+/// Runs `work` on every photograph in order, decoding the next one while `work` runs on the
+/// current one: at most two photographs are in memory.
+pub(crate) fn for_each_photo(
+    photos: &[Photo],
+    progress: &dyn Progress,
+    mut work: impl FnMut(usize, &Rgb32FImage, Option<&GrayImage>) -> Result<()> + Send,
+) -> Result<()> {
+    let Some(first) = photos.first() else {
+        return Ok(());
+    };
+    let mut current = decode(first)?;
+    for i in 0..photos.len() {
+        let (next, done) = rayon::join(
+            || photos.get(i + 1).map(decode).transpose(),
+            || work(i, &current.rgb, current.mask.as_ref()),
+        );
+        done?;
+        progress.advance(1);
+        match next? {
+            Some(n) => current = n,
+            None => break,
+        }
+    }
+    Ok(())
+}
+
+/// 3x3 Gaussian weights (1 2 1 / 2 4 2 / 1 2 1) / 16.
+const GAUSS3: [f32; 9] = [1.0, 2.0, 1.0, 2.0, 4.0, 2.0, 1.0, 2.0, 1.0];
+
+fn pixel(img: &Rgb32FImage, x: i64, y: i64) -> [f32; 3] {
+    let x = x.clamp(0, img.width() as i64 - 1) as u32;
+    let y = y.clamp(0, img.height() as i64 - 1) as u32;
+    img.get_pixel(x, y).0
+}
+
+/// 3x3 Gaussian-weighted colour around the pixel holding `px`.
+pub(crate) fn gauss_sample(img: &Rgb32FImage, px: &Point2<f64>) -> [f32; 3] {
+    let (cx, cy) = (px.x.floor() as i64, px.y.floor() as i64);
+    let mut acc = [0.0f32; 3];
+    for (i, w) in GAUSS3.iter().enumerate() {
+        let p = pixel(img, cx + (i % 3) as i64 - 1, cy + (i / 3) as i64 - 1);
+        for k in 0..3 {
+            acc[k] += p[k] * w / 16.0;
+        }
+    }
+    acc
+}
+
+/// The paper's background sample: the photograph median-filtered (3x3, per channel), then
+/// sampled with the 3x3 Gaussian around `px`.
+fn median_gauss_sample(img: &Rgb32FImage, px: &Point2<f64>) -> [f32; 3] {
+    let (cx, cy) = (px.x.floor() as i64, px.y.floor() as i64);
+    let mut acc = [0.0f32; 3];
+    for (i, w) in GAUSS3.iter().enumerate() {
+        let (x, y) = (cx + (i % 3) as i64 - 1, cy + (i / 3) as i64 - 1);
+        for (k, a) in acc.iter_mut().enumerate() {
+            let mut v: [f32; 9] = std::array::from_fn(|j| {
+                pixel(img, x + (j % 3) as i64 - 1, y + (j / 3) as i64 - 1)[k]
+            });
+            v.sort_unstable_by(f32::total_cmp);
+            *a += v[4] * w / 16.0;
+        }
+    }
+    acc
+}
+
+pub(crate) fn dist(a: &[f32; 3], b: &[f32; 3]) -> f32 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+pub(crate) fn median(v: &mut [f32]) -> f32 {
+    v.sort_unstable_by(f32::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// Median colour of the uncovered pixels and their spread, if there are enough of them.
+fn estimate_background(img: &Rgb32FImage, depth: &DepthMap) -> Option<([f32; 3], f32)> {
+    let step = (depth.width.max(depth.height) / 256).clamp(1, 8);
+    let pts = depth.uncovered(step);
+    // Fewer than 1% of the sampled grid: the mesh fills the frame, no background to learn.
+    let grid = (depth.width / step).max(1) as usize * (depth.height / step).max(1) as usize;
+    if pts.len() * 100 < grid {
+        return None;
+    }
+    let cols: Vec<[f32; 3]> = pts.iter().map(|p| gauss_sample(img, p)).collect();
+    let med: [f32; 3] = std::array::from_fn(|k| {
+        let mut c: Vec<f32> = cols.iter().map(|c| c[k]).collect();
+        median(&mut c)
+    });
+    let mut d: Vec<f32> = cols.iter().map(|c| dist(c, &med)).collect();
+    Some((med, median(&mut d)))
+}
+
+/// Stage 2: binds every vertex of `mesh` to its valid photographs. `normals` are unit vertex
+/// normals (same length as the vertices); photographs are decoded one at a time.
+pub fn bind(
+    mesh: &Mesh,
+    normals: &[Vector3<f64>],
+    photos: &[Photo],
+    opts: &BindOptions,
+    progress: &dyn Progress,
+) -> Result<Binding> {
+    opts.validate()?;
+    if photos.len() > u32::MAX as usize {
+        return Err(Error::Invalid("too many photographs".into()));
+    }
+    let nv = mesh.num_vertices();
+    let vf = VertexFaces::new(mesh);
+    let face_n: Vec<Vector3<f64>> = (0..mesh.num_faces())
+        .into_par_iter()
+        .map(|f| mesh.face_normal_area(FaceId(f as u32)))
+        .collect();
+    let mean_edge = mesh.mean_edge_length();
+    // The paper's segment test needs a BVH; the robust method reads its depth maps instead.
+    let rays = (opts.method == Method::Paper).then(|| crate::render::RayMesh::new(mesh));
+    let mut pairs: Vec<(u32, ViewSample)> = Vec::new();
+    let mut rejections = Rejections::default();
+    let mut per_photo = Vec::with_capacity(photos.len());
+    progress.start("binding", photos.len() as u64);
+    for_each_photo(photos, progress, |pi, rgb, mask| {
+        let view = &photos[pi].view;
+        let depth = DepthMap::render(mesh, view, opts.depth_resolution);
+        let background = match (mask, opts.background) {
+            (Some(_), _) | (None, Background::Off) => None,
+            (None, Background::Color(c)) => Some(c),
+            (None, Background::Estimate) => estimate_background(rgb, &depth)
+                .filter(|(_, spread)| *spread <= opts.background_max_spread)
+                .map(|(c, _)| c),
+        };
+        let centre = view.pose.center();
+        let focal = focal_px(view);
+        let reach = (opts.background_reach as f64 * depth.scale).ceil().max(1.0) as u32;
+        let (found, rej) = (0..nv)
+            .into_par_iter()
+            .fold(
+                || (Vec::new(), Rejections::default()),
+                |(mut found, mut rej), v| {
+                    let p = mesh.positions[v];
+                    let cam = view.pose.transform(&p);
+                    let px = (cam.z > 0.0)
+                        .then(|| view.camera.project(&cam))
+                        .flatten()
+                        .filter(|px| view.camera.contains(px));
+                    let Some(px) = px else {
+                        rej.outside += 1;
+                        return (found, rej);
+                    };
+                    let to_cam = centre - p;
+                    let dist_cam = to_cam.norm();
+                    let dir = to_cam / dist_cam.max(1e-300);
+                    let cos = normals[v].dot(&dir);
+                    if cos.is_nan() || cos <= opts.min_cos {
+                        rej.facing += 1;
+                        return (found, rej);
+                    }
+                    if vf
+                        .of(v)
+                        .iter()
+                        .any(|&f| face_n[f as usize].dot(&to_cam) <= 0.0)
+                    {
+                        rej.silhouette += 1;
+                        return (found, rej);
+                    }
+                    let eps = 1e-3 * mean_edge + 1e-9 * dist_cam;
+                    let occluded = match &rays {
+                        Some(r) => r
+                            .intersect(&centre, &(-dir))
+                            .is_some_and(|h| h.t < dist_cam - eps),
+                        None => {
+                            let z = depth.at(&px) as f64;
+                            cam.z > z + depth_tolerance(mean_edge, cam.z, focal * depth.scale, cos)
+                        }
+                    };
+                    if occluded {
+                        rej.occluded += 1;
+                        return (found, rej);
+                    }
+                    if let Some(m) = mask {
+                        let (x, y) = (px.x.floor() as i64, px.y.floor() as i64);
+                        let object = (-1..=1).all(|dy| {
+                            (-1..=1).all(|dx| {
+                                let xx = (x + dx).clamp(0, m.width() as i64 - 1) as u32;
+                                let yy = (y + dy).clamp(0, m.height() as i64 - 1) as u32;
+                                m.get_pixel(xx, yy).0[0] >= 128
+                            })
+                        });
+                        if !object {
+                            rej.mask += 1;
+                            return (found, rej);
+                        }
+                    } else if let Some(bg) = background {
+                        let test = opts.method == Method::Paper || depth.near_outline(&px, reach);
+                        if test
+                            && dist(&median_gauss_sample(rgb, &px), &bg) < opts.background_threshold
+                        {
+                            rej.background += 1;
+                            return (found, rej);
+                        }
+                    }
+                    let weight = match opts.method {
+                        Method::Paper => cos,
+                        // Projected area of a mean-edge square in pixels, times the cosine.
+                        Method::Robust => {
+                            (cos * (focal * mean_edge / cam.z).powi(2)).powf(opts.weight_power)
+                        }
+                    };
+                    found.push((
+                        v as u32,
+                        ViewSample {
+                            photo: pi as u32,
+                            color: gauss_sample(rgb, &px),
+                            weight: weight as f32,
+                        },
+                    ));
+                    rej.kept += 1;
+                    (found, rej)
+                },
+            )
+            .reduce(
+                || (Vec::new(), Rejections::default()),
+                |(mut a, mut ra), (b, rb)| {
+                    a.extend(b);
+                    ra.add(&rb);
+                    (a, ra)
+                },
+            );
+        per_photo.push(PhotoBinding {
+            name: photos[pi].name.clone(),
+            vertices: found.len() as u64,
+            background,
+        });
+        rejections.add(&rej);
+        pairs.extend(found);
+        Ok(())
+    })?;
+    progress.finish();
+    // Counting sort by vertex; within a vertex the photo order is kept (pairs arrive by photo).
+    let mut offsets = vec![0u32; nv + 1];
+    for (v, _) in &pairs {
+        offsets[*v as usize + 1] += 1;
+    }
+    for i in 0..nv {
+        offsets[i + 1] += offsets[i];
+    }
+    let mut fill = offsets.clone();
+    let mut samples = vec![
+        ViewSample {
+            photo: 0,
+            color: [0.0; 3],
+            weight: 0.0
+        };
+        pairs.len()
+    ];
+    for (v, s) in pairs {
+        samples[fill[v as usize] as usize] = s;
+        fill[v as usize] += 1;
+    }
+    let mut binding = Binding {
+        offsets,
+        samples,
+        photos: photos.len(),
+        rejections,
+        per_photo,
+        options: *opts,
+    };
+    if opts.method == Method::Robust && opts.consistency == Consistency::Vertex {
+        drop_inconsistent(&mut binding, opts.consistency_threshold);
+    }
+    Ok(binding)
+}
+
+/// Depth slack for "the same surface": half a mean edge (rasterised depth is linear across a
+/// triangle, the surface point is not exactly on it) plus the depth change across two depth
+/// pixels on a surface seen at `cos` (grazing views change depth fast).
+pub(crate) fn depth_tolerance(mean_edge: f64, z: f64, focal_depth_px: f64, cos: f64) -> f64 {
+    0.5 * mean_edge + 2.0 * z / focal_depth_px / cos.max(0.1)
+}
+
+/// Which of `colors` (one per view) agree with the others: all of them with fewer than 3.
+/// Exposure, white balance and shading differ between photographs by a factor, which is not
+/// disagreement: each colour is first scaled to the median brightness, then compared with the
+/// per-channel median; a view is out when that distance exceeds both `threshold` and 3 robust
+/// standard deviations (1.4826 x median distance), or when its brightness is more than
+/// [`BRIGHTNESS_RATIO`] times off the median's.
+pub(crate) fn consistent(colors: &[[f32; 3]], threshold: f32) -> Vec<bool> {
+    if colors.len() < 3 {
+        return vec![true; colors.len()];
+    }
+    let lum: Vec<f32> = colors
+        .iter()
+        .map(|c| (c[0] + c[1] + c[2]) / 3.0 + 1e-3)
+        .collect();
+    let mut l = lum.clone();
+    let lmed = median(&mut l);
+    let scaled: Vec<[f32; 3]> = colors
+        .iter()
+        .zip(&lum)
+        .map(|(c, l)| c.map(|v| v * lmed / l))
+        .collect();
+    let med: [f32; 3] = std::array::from_fn(|k| {
+        let mut c: Vec<f32> = scaled.iter().map(|c| c[k]).collect();
+        median(&mut c)
+    });
+    let d: Vec<f32> = scaled.iter().map(|c| dist(c, &med)).collect();
+    let mut dd = d.clone();
+    let limit = (3.0 * 1.4826 * median(&mut dd)).max(threshold);
+    d.iter()
+        .zip(&lum)
+        .map(|(&x, &l)| x <= limit && (l / lmed).ln().abs() <= BRIGHTNESS_RATIO.ln())
+        .collect()
+}
+
+/// Brightness factor between a view and the median of the views beyond which the view is an
+/// outlier (a highlight, a shadow cast by a passer-by): wider than exposure and shading
+/// differences between photographs usually are.
+const BRIGHTNESS_RATIO: f32 = 2.5;
+
+/// Drops, per vertex, the views [`consistent`] rejects.
+fn drop_inconsistent(b: &mut Binding, threshold: f32) {
+    let nv = b.offsets.len() - 1;
+    let keep: Vec<Vec<bool>> = (0..nv)
+        .into_par_iter()
+        .map(|v| {
+            let c: Vec<[f32; 3]> = b.views(v).iter().map(|s| s.color).collect();
+            consistent(&c, threshold)
+        })
+        .collect();
+    let mut offsets = vec![0u32; nv + 1];
+    let mut samples = Vec::with_capacity(b.samples.len());
+    let mut dropped = 0u64;
+    let mut lost = vec![0u64; b.per_photo.len()];
+    for v in 0..nv {
+        for (s, k) in b.views(v).iter().zip(&keep[v]) {
+            if *k {
+                samples.push(*s);
+            } else {
+                dropped += 1;
+                lost[s.photo as usize] += 1;
+            }
+        }
+        offsets[v + 1] = samples.len() as u32;
+    }
+    for (p, l) in b.per_photo.iter_mut().zip(lost) {
+        p.vertices -= l;
+    }
+    b.offsets = offsets;
+    b.samples = samples;
+    b.rejections.inconsistent = dropped;
+    b.rejections.kept -= dropped;
+}

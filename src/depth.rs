@@ -1,0 +1,278 @@
+//! A depth map of the mesh as one photograph sees it: triangles projected through the camera
+//! model (distortion included, vertex by vertex) and rasterised with a z-buffer. Used by the
+//! binding for occlusion, silhouettes and the background estimate, and by the resampling for
+//! per-texel occlusion (`docs/decisions.md`, "Binding and resampling").
+
+use crate::camera::PosedCamera;
+use crate::mesh::Mesh;
+use nalgebra::{Point2, Point3, Vector3};
+use rayon::prelude::*;
+
+/// Camera-frame depth (z) of the nearest surface per depth pixel; `f32::INFINITY` where the
+/// mesh does not cover it. The map may be coarser than the photograph: `scale` depth pixels per
+/// photo pixel.
+#[derive(Debug, Clone)]
+pub struct DepthMap {
+    /// Width in depth pixels.
+    pub width: u32,
+    /// Height in depth pixels.
+    pub height: u32,
+    /// Depth pixels per photo pixel (at most 1).
+    pub scale: f64,
+    /// Row-major depths.
+    pub z: Vec<f32>,
+}
+
+/// Rows rasterised together by one thread.
+const BAND: usize = 32;
+
+impl DepthMap {
+    /// Renders the depth of `mesh` seen by `view`, at most `max_side` pixels on the longer side.
+    /// A triangle with a corner that cannot be imaged (behind the camera) is left out.
+    pub fn render(mesh: &Mesh, view: &PosedCamera, max_side: u32) -> Self {
+        let (pw, ph) = (view.camera.width, view.camera.height);
+        let scale = (max_side as f64 / pw.max(ph) as f64).min(1.0);
+        let w = ((pw as f64 * scale).round() as u32).max(1);
+        let h = ((ph as f64 * scale).round() as u32).max(1);
+        // Projected corners: depth pixel coordinates (continuous, pixel centres at +0.5) and z.
+        let proj: Vec<Option<[f64; 3]>> = mesh
+            .positions
+            .par_iter()
+            .map(|p| {
+                let c = view.pose.transform(p);
+                if c.z <= 0.0 {
+                    return None;
+                }
+                let px = view.camera.project(&c)?;
+                Some([px.x * scale, px.y * scale, c.z])
+            })
+            .collect();
+        // Triangles that land in the image, with their row range, so each band scans few.
+        let tris: Vec<([[f64; 3]; 3], usize, usize)> = mesh
+            .faces
+            .par_iter()
+            .filter_map(|f| {
+                let a = proj[f[0].idx()]?;
+                let b = proj[f[1].idx()]?;
+                let c = proj[f[2].idx()]?;
+                let (ylo, yhi) = (a[1].min(b[1]).min(c[1]), a[1].max(b[1]).max(c[1]));
+                let (xlo, xhi) = (a[0].min(b[0]).min(c[0]), a[0].max(b[0]).max(c[0]));
+                if yhi < 0.0 || xhi < 0.0 || ylo > h as f64 || xlo > w as f64 {
+                    return None;
+                }
+                let r0 = (ylo - 0.5).ceil().max(0.0) as usize;
+                let r1 = ((yhi - 0.5).floor() as i64).min(h as i64 - 1);
+                (r1 >= r0 as i64).then_some(([a, b, c], r0, r1 as usize))
+            })
+            .collect();
+        let mut by_band: Vec<Vec<u32>> = vec![Vec::new(); (h as usize).div_ceil(BAND)];
+        for (i, t) in tris.iter().enumerate() {
+            for band in by_band.iter_mut().take(t.2 / BAND + 1).skip(t.1 / BAND) {
+                band.push(i as u32);
+            }
+        }
+        let mut z = vec![f32::INFINITY; (w * h) as usize];
+        z.par_chunks_mut(BAND * w as usize)
+            .zip(by_band.par_iter())
+            .enumerate()
+            .for_each(|(bi, (rows, list))| {
+                let y0 = bi * BAND;
+                let y1 = y0 + rows.len() / w as usize;
+                for &ti in list {
+                    let (t, r0, r1) = &tris[ti as usize];
+                    raster_depth(
+                        t,
+                        (*r0).max(y0),
+                        (*r1).min(y1 - 1),
+                        w as usize,
+                        |x, y, d| {
+                            let cell = &mut rows[(y - y0) * w as usize + x];
+                            if d < *cell {
+                                *cell = d;
+                            }
+                        },
+                    );
+                }
+            });
+        DepthMap {
+            width: w,
+            height: h,
+            scale,
+            z,
+        }
+    }
+
+    /// Depth pixel holding photo pixel coordinate `px`, if inside.
+    fn cell(&self, px: &Point2<f64>) -> Option<(u32, u32)> {
+        let (x, y) = (px.x * self.scale, px.y * self.scale);
+        if x < 0.0 || y < 0.0 {
+            return None;
+        }
+        let (x, y) = (x as u32, y as u32);
+        (x < self.width && y < self.height).then_some((x, y))
+    }
+
+    /// Depth at photo pixel coordinate `px` (nearest depth pixel); infinity outside the map.
+    pub fn at(&self, px: &Point2<f64>) -> f32 {
+        self.cell(px).map_or(f32::INFINITY, |(x, y)| {
+            self.z[(y * self.width + x) as usize]
+        })
+    }
+
+    /// Smallest depth in the `(2r+1)^2` depth pixels around `px`: the nearest surface any
+    /// nearby photo pixel might mix in (antialiasing, registration error).
+    pub fn min_around(&self, px: &Point2<f64>, r: u32) -> f32 {
+        let Some((x, y)) = self.cell(px) else {
+            return f32::INFINITY;
+        };
+        let mut m = f32::INFINITY;
+        for yy in y.saturating_sub(r)..=(y + r).min(self.height - 1) {
+            let row = &self.z[(yy * self.width) as usize..((yy + 1) * self.width) as usize];
+            for &d in &row[x.saturating_sub(r) as usize..=(x + r).min(self.width - 1) as usize] {
+                m = m.min(d);
+            }
+        }
+        m
+    }
+
+    /// True if some depth pixel within `r` of `px` is not covered by the mesh: `px` lies near
+    /// the mesh's outline in this photograph.
+    pub fn near_outline(&self, px: &Point2<f64>, r: u32) -> bool {
+        let Some((x, y)) = self.cell(px) else {
+            return true;
+        };
+        if x < r || y < r || x + r >= self.width || y + r >= self.height {
+            return false;
+        }
+        (y - r..=y + r).any(|yy| {
+            (x - r..=x + r).any(|xx| self.z[(yy * self.width + xx) as usize].is_infinite())
+        })
+    }
+
+    /// Photo pixel coordinates (centres) of uncovered depth pixels, every `step`-th one in
+    /// each direction: where the background shows.
+    pub fn uncovered(&self, step: u32) -> Vec<Point2<f64>> {
+        let mut out = Vec::new();
+        for y in (0..self.height).step_by(step.max(1) as usize) {
+            for x in (0..self.width).step_by(step.max(1) as usize) {
+                if self.z[(y * self.width + x) as usize].is_infinite() {
+                    out.push(Point2::new(
+                        (x as f64 + 0.5) / self.scale,
+                        (y as f64 + 0.5) / self.scale,
+                    ));
+                }
+            }
+        }
+        out
+    }
+}
+
+/// Calls `put(x, y, depth)` for every pixel centre of rows `r0..=r1` inside the projected
+/// triangle `t` (x, y, z per corner), depth interpolated as 1/z (perspective-correct for a
+/// pinhole, a close approximation through mild distortion on small triangles).
+fn raster_depth(
+    t: &[[f64; 3]; 3],
+    r0: usize,
+    r1: usize,
+    width: usize,
+    mut put: impl FnMut(usize, usize, f32),
+) {
+    let [a, b, c] = t;
+    let area = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
+    if area.abs() < 1e-12 || r0 > r1 {
+        return;
+    }
+    let inv = 1.0 / area;
+    let (iza, izb, izc) = (1.0 / a[2], 1.0 / b[2], 1.0 / c[2]);
+    let xlo = a[0].min(b[0]).min(c[0]);
+    let xhi = a[0].max(b[0]).max(c[0]);
+    let x0 = (xlo - 0.5).ceil().max(0.0) as usize;
+    let x1 = ((xhi - 0.5).floor() as i64).min(width as i64 - 1);
+    if x1 < x0 as i64 {
+        return;
+    }
+    for y in r0..=r1 {
+        let py = y as f64 + 0.5;
+        for x in x0..=x1 as usize {
+            let px = x as f64 + 0.5;
+            let wa = ((b[0] - px) * (c[1] - py) - (c[0] - px) * (b[1] - py)) * inv;
+            let wb = ((c[0] - px) * (a[1] - py) - (a[0] - px) * (c[1] - py)) * inv;
+            let wc = 1.0 - wa - wb;
+            if wa < 0.0 || wb < 0.0 || wc < 0.0 {
+                continue;
+            }
+            let iz = wa * iza + wb * izb + wc * izc;
+            put(x, y, (1.0 / iz) as f32);
+        }
+    }
+}
+
+/// Camera-frame depth of world point `p` in `view`.
+pub fn depth_of(view: &PosedCamera, p: &Point3<f64>) -> f64 {
+    view.pose.transform(p).z
+}
+
+/// Focal length in pixels near the image centre, measured through the camera model (works for
+/// every model, fisheyes included).
+pub fn focal_px(view: &PosedCamera) -> f64 {
+    let d = 1e-3;
+    match (
+        view.camera.project(&Vector3::new(0.0, 0.0, 1.0)),
+        view.camera.project(&Vector3::new(d, d, 1.0)),
+    ) {
+        (Some(a), Some(b)) => (b - a).norm() / (d * std::f64::consts::SQRT_2),
+        _ => view.camera.width.max(view.camera.height) as f64,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::{Camera, CameraModel, Pose};
+    use crate::mesh::VertexId;
+
+    fn pinhole(w: u32, h: u32, f: f64) -> PosedCamera {
+        PosedCamera {
+            camera: Camera::new(
+                1,
+                CameraModel::Pinhole,
+                w,
+                h,
+                vec![f, f, w as f64 / 2.0, h as f64 / 2.0],
+            )
+            .unwrap(),
+            pose: Pose::from_colmap([1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0]),
+        }
+    }
+
+    /// Two squares facing the camera at z = 2 and z = 4, the near one covering the left half:
+    /// depths are exact (planes parallel to the image), the nearer wins, the rest is empty.
+    #[test]
+    fn nearest_surface_wins_and_depth_is_exact() {
+        let mut m = Mesh::default();
+        let quad = |m: &mut Mesh, x0: f64, x1: f64, z: f64| {
+            let b = m.positions.len() as u32;
+            for (x, y) in [(x0, -1.0), (x1, -1.0), (x1, 1.0), (x0, 1.0)] {
+                m.positions.push(Point3::new(x, y, z));
+            }
+            m.faces
+                .push([VertexId(b), VertexId(b + 1), VertexId(b + 2)]);
+            m.faces
+                .push([VertexId(b), VertexId(b + 2), VertexId(b + 3)]);
+        };
+        quad(&mut m, -1.0, 0.0, 2.0);
+        quad(&mut m, -1.0, 1.0, 4.0);
+        let view = pinhole(200, 100, 50.0);
+        let d = DepthMap::render(&m, &view, 1000);
+        assert_eq!((d.width, d.height, d.scale), (200, 100, 1.0));
+        // Left of centre: near square (covers x in [-25, 0] px from the centre at z = 2).
+        assert_eq!(d.at(&Point2::new(90.5, 50.5)), 2.0);
+        // Right of centre: far square only (x up to +12.5 px at z = 4).
+        assert_eq!(d.at(&Point2::new(105.5, 50.5)), 4.0);
+        assert!(d.at(&Point2::new(150.5, 50.5)).is_infinite());
+        assert!(d.near_outline(&Point2::new(111.5, 50.5), 2));
+        assert!(!d.near_outline(&Point2::new(100.5, 50.5), 2));
+        assert_eq!(d.min_around(&Point2::new(101.5, 50.5), 2), 2.0);
+        assert!((focal_px(&view) - 50.0).abs() < 1e-6);
+    }
+}

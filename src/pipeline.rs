@@ -1,0 +1,314 @@
+//! `scantex texture`: the stages in order, with timings, peak memory and the outputs.
+//!
+//! mesh + photographs -> [`atlas::parameterize`] -> [`bind::bind`] -> [`resample::resample`]
+//! -> textured mesh. Merging (stage 4) and restoration (stage 5) slot in after resampling.
+
+use crate::atlas::{self, AtlasOptions, AtlasReport};
+use crate::bind::{self, BindOptions, Rejections};
+use crate::error::{Error, Result};
+use crate::io::{self, EncodedTexture, Staged};
+use crate::mesh::Mesh;
+use crate::progress::Progress;
+use crate::resample::{self, ResampleOptions, ResampleStats, Resampled};
+use crate::scene::Photo;
+use image::{DynamicImage, Rgb32FImage};
+use nalgebra::Vector3;
+use serde::Serialize;
+use std::path::Path;
+use std::time::Instant;
+
+/// The important view direction V of the atlas's visual-importance weight.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum ViewWeight {
+    /// The mean viewing direction of the photographs, when they agree enough to have one
+    /// (the mean of their unit viewing directions has length at least 0.3; photographs all
+    /// around an object have no preferred view and get no weight). Default.
+    #[default]
+    MeanPhotoDirection,
+    /// A given direction (from the eye towards the object).
+    Direction([f64; 3]),
+    /// No view weight.
+    Off,
+}
+
+/// Pixel format of the atlas file beside the OBJ.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum TextureFormat {
+    /// 8-bit sRGB PNG. Default.
+    #[default]
+    Png,
+    /// 16-bit PNG.
+    Png16,
+    /// 32-bit float OpenEXR (the GLB still embeds an 8-bit PNG: glTF has no EXR).
+    Exr,
+}
+
+impl std::str::FromStr for TextureFormat {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "png" => Ok(TextureFormat::Png),
+            "png16" => Ok(TextureFormat::Png16),
+            "exr" => Ok(TextureFormat::Exr),
+            _ => Err(Error::Invalid(format!(
+                "unknown texture format '{s}' (expected png, png16 or exr)"
+            ))),
+        }
+    }
+}
+
+/// Everything `scantex texture` can be told.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct TextureOptions {
+    /// Atlas (size, gutter, stretch). Default: [`AtlasOptions::default`] (4096, gutter 4).
+    pub atlas: AtlasOptions,
+    /// Where the view weight's direction comes from. Default: mean photo direction.
+    pub view_weight: ViewWeight,
+    /// Binding (method, background, consistency, weights).
+    pub bind: BindOptions,
+    /// Resampling (gutter fill).
+    pub resample: ResampleOptions,
+    /// Atlas file format. Default: PNG.
+    pub format: TextureFormat,
+}
+
+impl TextureOptions {
+    /// Checks every stage's options.
+    pub fn validate(&self) -> Result<()> {
+        self.atlas.validate()?;
+        self.bind.validate()?;
+        if self.atlas.pack.texels_per_unit.is_some() {
+            return Err(Error::Invalid(
+                "texturing writes one atlas page: a fixed texel density is not supported here"
+                    .into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Time and memory of one stage.
+#[derive(Debug, Clone, Serialize)]
+pub struct StageReport {
+    /// Stage name.
+    pub stage: &'static str,
+    /// Wall time, seconds.
+    pub seconds: f64,
+    /// Peak resident memory of the process at the end of the stage, MB (0 if unknown).
+    pub peak_mb: f64,
+}
+
+/// What `scantex texture` did (written as `report.json`).
+#[derive(Debug, Clone, Serialize)]
+pub struct TextureReport {
+    /// scantex version.
+    pub version: &'static str,
+    /// Binding and resampling method.
+    pub method: bind::Method,
+    /// Mesh vertices (after welding) and faces.
+    pub vertices: usize,
+    /// See `vertices`.
+    pub faces: usize,
+    /// Photographs used.
+    pub photos: usize,
+    /// The view direction the atlas weighted by, if any.
+    pub view_dir: Option<[f64; 3]>,
+    /// The atlas stage's report.
+    pub atlas: AtlasReport,
+    /// Vertices with at least one valid photograph.
+    pub vertices_bound: usize,
+    /// Vertices with none.
+    pub vertices_unbound: usize,
+    /// Why vertex-photograph pairs were rejected.
+    pub rejections: Rejections,
+    /// Per photograph: vertices bound and background colour used.
+    pub per_photo: Vec<bind::PhotoBinding>,
+    /// Triangles per class and texels per source.
+    pub resample: ResampleStats,
+    /// Of the chart texels some photograph saw, the fraction coloured from photographs.
+    pub completeness_seen: f64,
+    /// Per-stage time and peak memory.
+    pub stages: Vec<StageReport>,
+}
+
+/// The product of [`texture`].
+#[derive(Debug, Clone)]
+pub struct Textured {
+    /// The mesh with its atlas UVs.
+    pub mesh: Mesh,
+    /// The resampled atlas and its per-texel bookkeeping.
+    pub resampled: Resampled,
+    /// What happened.
+    pub report: TextureReport,
+}
+
+/// Mean viewing direction of the photographs, if they agree enough to have one.
+pub fn mean_view_dir(photos: &[Photo]) -> Option<Vector3<f64>> {
+    let sum: Vector3<f64> = photos.iter().map(|p| p.view.pose.view_dir()).sum();
+    let mean = sum / photos.len().max(1) as f64;
+    (mean.norm() >= 0.3).then(|| mean.normalize())
+}
+
+/// Runs stages 1-3 on `mesh` and `photos`.
+pub fn texture(
+    mesh: &Mesh,
+    photos: &[Photo],
+    opts: &TextureOptions,
+    progress: &dyn Progress,
+) -> Result<Textured> {
+    opts.validate()?;
+    if photos.is_empty() {
+        return Err(Error::Invalid(
+            "the scene has no registered photographs to texture from".into(),
+        ));
+    }
+    let mut stages = Vec::new();
+    let mut t = Instant::now();
+    let mut stage = |name: &'static str, t: &mut Instant| {
+        stages.push(StageReport {
+            stage: name,
+            seconds: t.elapsed().as_secs_f64(),
+            peak_mb: io::peak_memory().unwrap_or(0) as f64 / 1e6,
+        });
+        *t = Instant::now();
+    };
+    let mut atlas_opts = opts.atlas;
+    let view_dir = match opts.view_weight {
+        ViewWeight::MeanPhotoDirection => mean_view_dir(photos),
+        ViewWeight::Direction(d) => Some(Vector3::from(d)),
+        ViewWeight::Off => None,
+    };
+    atlas_opts.flatten.stretch.view_dir = view_dir;
+    progress.start("atlas", 1);
+    let (m, atlas_report) = atlas::parameterize(mesh, &atlas_opts)?;
+    progress.finish();
+    stage("atlas", &mut t);
+    let normals = m.vertex_normals();
+    let binding = bind::bind(&m, &normals, photos, &opts.bind, progress)?;
+    stage("bind", &mut t);
+    let resampled = resample::resample(
+        &m,
+        &normals,
+        &binding,
+        photos,
+        opts.atlas.pack.size,
+        &opts.resample,
+        progress,
+    )?;
+    stage("resample", &mut t);
+    let s = &resampled.stats;
+    let seen = s.texels_photos + s.texels_green_fallback;
+    let report = TextureReport {
+        version: env!("CARGO_PKG_VERSION"),
+        method: opts.bind.method,
+        vertices: m.num_vertices(),
+        faces: m.num_faces(),
+        photos: photos.len(),
+        view_dir: view_dir.map(|v| [v.x, v.y, v.z]),
+        atlas: atlas_report,
+        vertices_bound: binding.bound_vertices(),
+        vertices_unbound: m.num_vertices() - binding.bound_vertices(),
+        rejections: binding.rejections,
+        per_photo: binding.per_photo,
+        resample: resampled.stats.clone(),
+        completeness_seen: if seen > 0 {
+            s.texels_photos as f64 / seen as f64
+        } else {
+            1.0
+        },
+        stages,
+    };
+    Ok(Textured {
+        mesh: m,
+        resampled,
+        report,
+    })
+}
+
+fn to_png8(img: &Rgb32FImage) -> Result<EncodedTexture> {
+    io::image::encode_png(&DynamicImage::ImageRgb8(crate::render::to_rgb8(img)))
+}
+
+/// Writes `<dir>/model.obj` (+ `model.mtl`, `model.png|exr`), `model.glb`, `report.json`, and
+/// with `debug` the pictures `classes.png`, `coverage.png` and `layout.png` into that
+/// directory. Every file appears at once or none does.
+pub fn write_outputs(
+    dir: &Path,
+    result: &Textured,
+    format: TextureFormat,
+    debug: Option<&Path>,
+) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let img = &result.resampled.color;
+    let png8 = to_png8(img)?;
+    let main = match format {
+        TextureFormat::Png => png8.clone(),
+        TextureFormat::Png16 => {
+            io::image::encode_png(&DynamicImage::ImageRgb32F(img.clone()).into_rgb16().into())?
+        }
+        TextureFormat::Exr => io::image::encode_exr(img)?,
+    };
+    let mut staged = Staged::new();
+    io::obj::write(
+        &mut staged,
+        &dir.join("model.obj"),
+        &result.mesh,
+        Some(&main),
+    )?;
+    io::gltf::write_glb(
+        &mut staged,
+        &dir.join("model.glb"),
+        &result.mesh,
+        Some(&png8),
+    )?;
+    let json = serde_json::to_vec_pretty(&result.report)
+        .map_err(|e| Error::Invalid(format!("cannot serialise the report: {e}")))?;
+    staged.write(&dir.join("report.json"), &json)?;
+    if let Some(d) = debug {
+        std::fs::create_dir_all(d).map_err(|e| Error::io(d, e))?;
+        let r = &result.resampled;
+        let size = img.width();
+        for (name, pic) in [
+            ("classes.png", r.class_picture()),
+            ("coverage.png", r.coverage_picture()),
+            (
+                "layout.png",
+                atlas::layout_picture(&result.mesh, size.min(4096)),
+            ),
+        ] {
+            let enc = io::image::encode_png(&DynamicImage::ImageRgb8(pic))?;
+            staged.write(&d.join(name), &enc.bytes)?;
+        }
+    }
+    staged.commit()
+}
+
+/// The whole `scantex texture` job: loads the scene (mesh and COLMAP model required; every
+/// photograph checked before any work), textures it, writes the outputs into `out`.
+pub fn texture_scene(
+    spec: &crate::scene::SceneSpec,
+    opts: &TextureOptions,
+    out: &Path,
+    debug: Option<&Path>,
+    progress: &dyn Progress,
+) -> Result<Textured> {
+    opts.validate()?;
+    let scene = crate::scene::Scene::load(spec)?;
+    let Some((mesh, _)) = &scene.mesh else {
+        return Err(Error::Invalid(
+            "texturing needs a mesh: give a scene directory with mesh.(ply|obj|glb) or --mesh"
+                .into(),
+        ));
+    };
+    if scene.reconstruction.is_none() {
+        return Err(Error::Invalid(
+            "texturing needs a COLMAP model: give a scene directory with sparse/ or --colmap"
+                .into(),
+        ));
+    }
+    scene.check_photos()?;
+    let result = texture(mesh, &scene.photos, opts, progress)?;
+    write_outputs(out, &result, opts.format, debug)?;
+    Ok(result)
+}

@@ -1,0 +1,741 @@
+//! Stage 3, resampling (paper section 4.1, `docs/method.md` section 3): photographs into the
+//! atlas. In: the mesh with its atlas UVs, vertex normals, the [`Binding`], the photographs.
+//! Out: [`Resampled`] (the atlas colour, where each texel's colour came from, the triangle
+//! classes).
+//!
+//! Triangles are green (the three vertices share a valid photograph), blue (all bound, none in
+//! common) or red (a vertex unbound). Green texels take the weighted mean of the common
+//! photographs; blue and red texels interpolate vertex colours, red after the paper's
+//! iterative fill of unbound vertices (80/60/40/20% of the one-ring coloured, then any
+//! coloured neighbour). The robust method also tests every texel against each photograph's
+//! depth map (a triangle half hidden in a photograph takes its colour only where it is seen);
+//! a green texel no photograph sees falls back to vertex colours.
+//!
+//! The atlas is processed in bands of rows in parallel; photographs one at a time, so memory is
+//! the atlas's accumulators plus two decoded photographs.
+
+use crate::bind::{consistent, depth_tolerance, for_each_photo, Binding, Consistency, Method};
+use crate::depth::{focal_px, DepthMap};
+use crate::error::{Error, Result};
+use crate::mesh::{FaceId, Mesh};
+use crate::progress::Progress;
+use crate::scene::Photo;
+use image::{Rgb32FImage, RgbImage};
+use nalgebra::{Point2, Point3, Vector2, Vector3};
+use rayon::prelude::*;
+use serde::Serialize;
+
+/// The paper's triangle classes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FaceClass {
+    /// The three vertices share at least one valid photograph.
+    Green,
+    /// Every vertex is bound, none in common.
+    Blue,
+    /// At least one vertex is unbound.
+    Red,
+}
+
+/// Where a texel's colour came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum TexelSource {
+    /// Outside every chart and beyond the gutter fill.
+    Empty = 0,
+    /// Weighted mean of photographs.
+    Photos = 1,
+    /// A green triangle's texel that no photograph saw (robust method's per-texel tests):
+    /// vertex colours.
+    GreenFallback = 2,
+    /// A blue triangle: interpolated vertex colours.
+    Blue = 3,
+    /// A red triangle: interpolated vertex colours after the fill.
+    Red = 4,
+    /// Gutter, extended from the nearest chart texels.
+    Gutter = 5,
+}
+
+/// Options for [`resample`] beyond the binding's (method, weights, depth maps).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ResampleOptions {
+    /// Texels of gutter around every chart filled by extending the chart's colours, so that
+    /// bilinear filtering and mip-mapping never pull in empty texels. Default: 8.
+    pub gutter_fill: u32,
+}
+
+impl Default for ResampleOptions {
+    fn default() -> Self {
+        ResampleOptions { gutter_fill: 8 }
+    }
+}
+
+/// Counts of what [`resample`] did.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct ResampleStats {
+    /// Triangles per class.
+    pub green: u64,
+    /// See [`FaceClass::Blue`].
+    pub blue: u64,
+    /// See [`FaceClass::Red`].
+    pub red: u64,
+    /// Texels coloured from photographs.
+    pub texels_photos: u64,
+    /// Green-triangle texels no photograph saw (vertex colours instead).
+    pub texels_green_fallback: u64,
+    /// Blue-triangle texels.
+    pub texels_blue: u64,
+    /// Red-triangle texels.
+    pub texels_red: u64,
+    /// Gutter texels filled.
+    pub texels_gutter: u64,
+    /// Unbound vertices coloured by the fill, per round (80, 60, 40, 20%, any neighbour).
+    pub filled_per_round: [u64; 5],
+    /// Vertices no fill could reach (components no photograph saw): the mean colour.
+    pub vertices_unreachable: u64,
+}
+
+/// The resampled atlas.
+#[derive(Debug, Clone)]
+pub struct Resampled {
+    /// Atlas colour, RGB in the photographs' values.
+    pub color: Rgb32FImage,
+    /// [`TexelSource`] per texel, row-major.
+    pub source: Vec<u8>,
+    /// Photographs that contributed to each texel (saturating at 255).
+    pub views: Vec<u8>,
+    /// Class of each face.
+    pub classes: Vec<FaceClass>,
+    /// Vertex colours after the fill (one per vertex).
+    pub vertex_colors: Vec<[f32; 3]>,
+    /// Counts.
+    pub stats: ResampleStats,
+}
+
+impl Resampled {
+    /// The paper's Fig. 7: texels coloured by their triangle's class (black outside charts).
+    pub fn class_picture(&self) -> RgbImage {
+        let (w, h) = self.color.dimensions();
+        RgbImage::from_fn(w, h, |x, y| {
+            let s = self.source[(y * w + x) as usize];
+            image::Rgb(match s {
+                1 | 2 => [40, 200, 60],
+                3 => [50, 90, 230],
+                4 => [230, 50, 40],
+                5 => [40, 40, 40],
+                _ => [0, 0, 0],
+            })
+        })
+    }
+
+    /// Coverage: grey by the number of photographs that coloured the texel (brighter = more,
+    /// white at 8 or more), orange for chart texels no photograph saw, black outside charts.
+    pub fn coverage_picture(&self) -> RgbImage {
+        let (w, h) = self.color.dimensions();
+        RgbImage::from_fn(w, h, |x, y| {
+            let i = (y * w + x) as usize;
+            match self.source[i] {
+                1 => {
+                    let g = (60 + 195 * self.views[i].min(8) as u32 / 8) as u8;
+                    image::Rgb([g, g, g])
+                }
+                2..=4 => image::Rgb([240, 140, 20]),
+                _ => image::Rgb([0, 0, 0]),
+            }
+        })
+    }
+}
+
+/// Sorted photographs common to the three vertices of every face, compressed rows.
+struct Common {
+    offsets: Vec<u32>,
+    photos: Vec<u32>,
+}
+
+impl Common {
+    /// With `face_check` (threshold), photographs whose face colour disagrees with the other
+    /// common photographs' are left out of that face's list.
+    fn new(mesh: &Mesh, b: &Binding, face_check: Option<f32>) -> Self {
+        let lists: Vec<Vec<u32>> = mesh
+            .faces
+            .par_iter()
+            .map(|f| {
+                let [a, bb, c] = [f[0].idx(), f[1].idx(), f[2].idx()].map(|v| b.views(v));
+                let mut photos = Vec::new();
+                let mut colors = Vec::new();
+                for s in a {
+                    let (Ok(j), Ok(k)) = (
+                        bb.binary_search_by_key(&s.photo, |t| t.photo),
+                        c.binary_search_by_key(&s.photo, |t| t.photo),
+                    ) else {
+                        continue;
+                    };
+                    photos.push(s.photo);
+                    colors.push(std::array::from_fn(|ch| {
+                        (s.color[ch] + bb[j].color[ch] + c[k].color[ch]) / 3.0
+                    }));
+                }
+                match face_check {
+                    Some(t) => photos
+                        .into_iter()
+                        .zip(consistent(&colors, t))
+                        .filter_map(|(p, ok)| ok.then_some(p))
+                        .collect(),
+                    None => photos,
+                }
+            })
+            .collect();
+        let mut offsets = Vec::with_capacity(lists.len() + 1);
+        offsets.push(0u32);
+        let mut photos = Vec::new();
+        for l in lists {
+            photos.extend(l);
+            offsets.push(photos.len() as u32);
+        }
+        Common { offsets, photos }
+    }
+
+    fn of(&self, f: usize) -> &[u32] {
+        &self.photos[self.offsets[f] as usize..self.offsets[f + 1] as usize]
+    }
+}
+
+/// Classifies every face (green, blue, red).
+pub fn classify(mesh: &Mesh, b: &Binding) -> Vec<FaceClass> {
+    let common = Common::new(mesh, b, None);
+    classes_from(mesh, b, &common)
+}
+
+fn classes_from(mesh: &Mesh, b: &Binding, common: &Common) -> Vec<FaceClass> {
+    (0..mesh.num_faces())
+        .map(|f| {
+            if !common.of(f).is_empty() {
+                FaceClass::Green
+            } else if mesh.faces[f].iter().all(|v| !b.views(v.idx()).is_empty()) {
+                FaceClass::Blue
+            } else {
+                FaceClass::Red
+            }
+        })
+        .collect()
+}
+
+/// The paper's fill of unbound vertices: rounds at 80, 60, 40 and 20% of the one-ring
+/// coloured, each repeated until nothing changes, then any coloured neighbour; a vertex takes
+/// the mean of its coloured neighbours. Rounds update all qualifying vertices at once (the
+/// result does not depend on vertex order). Vertices no fill reaches get the mean colour.
+pub fn fill_vertex_colors(
+    mesh: &Mesh,
+    colors: &[Option<[f32; 3]>],
+) -> (Vec<[f32; 3]>, [u64; 5], u64) {
+    let nv = mesh.num_vertices();
+    // One-ring neighbours, deduplicated.
+    let mut nbr: Vec<Vec<u32>> = vec![Vec::new(); nv];
+    for f in &mesh.faces {
+        for k in 0..3 {
+            let (a, b) = (f[k].0, f[(k + 1) % 3].0);
+            nbr[a as usize].push(b);
+            nbr[b as usize].push(a);
+        }
+    }
+    for n in &mut nbr {
+        n.sort_unstable();
+        n.dedup();
+    }
+    let mut col: Vec<Option<[f32; 3]>> = colors.to_vec();
+    let mut per_round = [0u64; 5];
+    for (round, p) in [0.8, 0.6, 0.4, 0.2, 0.0].into_iter().enumerate() {
+        loop {
+            let updates: Vec<(usize, [f32; 3])> = (0..nv)
+                .into_par_iter()
+                .filter(|&v| col[v].is_none() && !nbr[v].is_empty())
+                .filter_map(|v| {
+                    let coloured: Vec<[f32; 3]> =
+                        nbr[v].iter().filter_map(|&u| col[u as usize]).collect();
+                    let frac = coloured.len() as f64 / nbr[v].len() as f64;
+                    if coloured.is_empty() || frac < p {
+                        return None;
+                    }
+                    let n = coloured.len() as f32;
+                    Some((
+                        v,
+                        std::array::from_fn(|k| coloured.iter().map(|c| c[k]).sum::<f32>() / n),
+                    ))
+                })
+                .collect();
+            if updates.is_empty() {
+                break;
+            }
+            per_round[round] += updates.len() as u64;
+            for (v, c) in updates {
+                col[v] = Some(c);
+            }
+        }
+    }
+    let known: Vec<[f32; 3]> = col.iter().flatten().copied().collect();
+    let mean = if known.is_empty() {
+        [0.5; 3]
+    } else {
+        std::array::from_fn(|k| known.iter().map(|c| c[k]).sum::<f32>() / known.len() as f32)
+    };
+    let unreachable = col.iter().filter(|c| c.is_none()).count() as u64;
+    (
+        col.into_iter().map(|c| c.unwrap_or(mean)).collect(),
+        per_round,
+        unreachable,
+    )
+}
+
+/// Rows of the atlas processed together by one thread.
+const BAND: usize = 16;
+
+/// A face's triangle in texel coordinates and what the per-texel work needs of it.
+struct FaceRaster {
+    /// Corners (x right, y down), texel centres at +0.5.
+    t: [Vector2<f64>; 3],
+    /// Twice the signed area.
+    area2: f64,
+    /// Texel rows spanned (inclusive), conservatively.
+    rows: (usize, usize),
+    /// Texel columns spanned (inclusive), conservatively.
+    cols: (usize, usize),
+    /// 3D length of one texel on this face.
+    texel_len: f64,
+}
+
+impl FaceRaster {
+    /// Barycentrics of the texel centre (x, y), unclamped.
+    fn bary(&self, x: usize, y: usize) -> [f64; 3] {
+        let p = Vector2::new(x as f64 + 0.5, y as f64 + 0.5);
+        let [a, b, c] = &self.t;
+        let cross = |u: Vector2<f64>, v: Vector2<f64>| u.x * v.y - u.y * v.x;
+        let wa = cross(b - p, c - p) / self.area2;
+        let wb = cross(c - p, a - p) / self.area2;
+        [wa, wb, 1.0 - wa - wb]
+    }
+
+    /// Signed distances (texels) from the centre (x, y) to the three edge lines, positive
+    /// inside.
+    fn edge_distances(&self, x: usize, y: usize) -> [f64; 3] {
+        let b = self.bary(x, y);
+        let [a, bb, c] = &self.t;
+        let len = [(c - bb).norm(), (a - c).norm(), (bb - a).norm()];
+        std::array::from_fn(|k| b[k] * self.area2.abs() / len[k].max(1e-300))
+    }
+}
+
+/// Which face owns each texel: the face containing the texel centre (the first by index on a
+/// shared edge); texels a face merely touches (within 0.75 texel of it) go to the first such
+/// face if no centre lies in them, so chart borders are coloured from their own triangles.
+struct TexelMap {
+    size: usize,
+    faces: Vec<Option<FaceRaster>>,
+    /// Faces overlapping each band, by index.
+    bands: Vec<Vec<u32>>,
+    owner: Vec<u32>,
+}
+
+const NO_FACE: u32 = u32::MAX;
+
+impl TexelMap {
+    fn new(mesh: &Mesh, size: u32) -> Result<Self> {
+        let uv = mesh
+            .uv
+            .as_ref()
+            .ok_or_else(|| Error::Invalid("resampling needs a mesh with an atlas".into()))?;
+        let s = size as f64;
+        let n = size as usize;
+        let faces: Vec<Option<FaceRaster>> = (0..mesh.num_faces())
+            .into_par_iter()
+            .map(|f| {
+                let c = uv.faces[f];
+                let t: [Vector2<f64>; 3] = std::array::from_fn(|k| {
+                    let q = uv.coords[c[k] as usize];
+                    Vector2::new(q.x as f64 * s, (1.0 - q.y as f64) * s)
+                });
+                let cross = |u: Vector2<f64>, v: Vector2<f64>| u.x * v.y - u.y * v.x;
+                let area2 = cross(t[1] - t[0], t[2] - t[0]);
+                if area2.abs() < 1e-12 || t.iter().any(|p| !p.x.is_finite() || !p.y.is_finite()) {
+                    return None;
+                }
+                let lo = t[0].inf(&t[1]).inf(&t[2]);
+                let hi = t[0].sup(&t[1]).sup(&t[2]);
+                if hi.x < 0.0 || hi.y < 0.0 || lo.x > s || lo.y > s {
+                    return None; // another page
+                }
+                let clamp = |v: f64| v.clamp(0.0, s - 1.0) as usize;
+                let a3 = mesh.face_area(FaceId(f as u32));
+                Some(FaceRaster {
+                    t,
+                    area2,
+                    rows: (clamp(lo.y - 1.0), clamp(hi.y + 1.0)),
+                    cols: (clamp(lo.x - 1.0), clamp(hi.x + 1.0)),
+                    texel_len: (a3 / (0.5 * area2.abs())).sqrt(),
+                })
+            })
+            .collect();
+        let mut bands: Vec<Vec<u32>> = vec![Vec::new(); n.div_ceil(BAND)];
+        for (f, r) in faces.iter().enumerate() {
+            if let Some(r) = r {
+                for band in bands
+                    .iter_mut()
+                    .take(r.rows.1 / BAND + 1)
+                    .skip(r.rows.0 / BAND)
+                {
+                    band.push(f as u32);
+                }
+            }
+        }
+        let mut owner = vec![NO_FACE; n * n];
+        owner
+            .par_chunks_mut(BAND * n)
+            .zip(bands.par_iter())
+            .enumerate()
+            .for_each(|(bi, (rows, list))| {
+                let y0 = bi * BAND;
+                let y1 = y0 + rows.len() / n;
+                for conservative in [false, true] {
+                    for &f in list {
+                        let r = faces[f as usize].as_ref().expect("listed faces rasterise");
+                        for y in r.rows.0.max(y0)..=r.rows.1.min(y1 - 1) {
+                            for x in r.cols.0..=r.cols.1 {
+                                let o = &mut rows[(y - y0) * n + x];
+                                if *o != NO_FACE {
+                                    continue;
+                                }
+                                let inside = if conservative {
+                                    r.edge_distances(x, y).iter().all(|&d| d >= -0.75)
+                                } else {
+                                    r.bary(x, y).iter().all(|&b| b >= 0.0)
+                                };
+                                if inside {
+                                    *o = f;
+                                }
+                            }
+                        }
+                    }
+                }
+            });
+        Ok(TexelMap {
+            size: n,
+            faces,
+            bands,
+            owner,
+        })
+    }
+}
+
+/// Clamps barycentrics to the triangle (texels just outside it, owned conservatively).
+fn clamp_bary(b: [f64; 3]) -> [f64; 3] {
+    let c = b.map(|v| v.max(0.0));
+    let s: f64 = c.iter().sum();
+    if s > 0.0 {
+        c.map(|v| v / s)
+    } else {
+        [1.0 / 3.0; 3]
+    }
+}
+
+/// A photograph as a mip chain (2x2 box filter), for samples whose footprint spans several
+/// pixels.
+struct PhotoPyramid<'a> {
+    base: &'a Rgb32FImage,
+    levels: Vec<Rgb32FImage>,
+}
+
+impl<'a> PhotoPyramid<'a> {
+    fn new(base: &'a Rgb32FImage, levels: usize) -> Self {
+        let mut out: Vec<Rgb32FImage> = Vec::new();
+        for _ in 0..levels {
+            let prev = out.last().unwrap_or(base);
+            let (w, h) = prev.dimensions();
+            if w < 2 || h < 2 {
+                break;
+            }
+            let (nw, nh) = (w / 2, h / 2);
+            let mut buf = vec![0f32; (nw * nh * 3) as usize];
+            buf.par_chunks_mut((nw * 3) as usize)
+                .enumerate()
+                .for_each(|(y, row)| {
+                    for x in 0..nw as usize {
+                        for k in 0..3 {
+                            let g = |dx: u32, dy: u32| {
+                                prev.get_pixel(2 * x as u32 + dx, 2 * y as u32 + dy).0[k]
+                            };
+                            row[3 * x + k] = 0.25 * (g(0, 0) + g(1, 0) + g(0, 1) + g(1, 1));
+                        }
+                    }
+                });
+            out.push(Rgb32FImage::from_raw(nw, nh, buf).expect("sized nw*nh*3"));
+        }
+        PhotoPyramid { base, levels: out }
+    }
+
+    fn level(&self, l: usize) -> &Rgb32FImage {
+        if l == 0 {
+            self.base
+        } else {
+            &self.levels[(l - 1).min(self.levels.len().saturating_sub(1))]
+        }
+    }
+
+    /// Bilinear sample at photo pixel coordinate `px` (centres at +0.5) of level `l`.
+    fn bilinear(&self, l: usize, px: &Point2<f64>) -> [f32; 3] {
+        let l = l.min(self.levels.len());
+        let img = self.level(l);
+        let f = (1u32 << l) as f64;
+        let (w, h) = img.dimensions();
+        let x = px.x / f - 0.5;
+        let y = px.y / f - 0.5;
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = ((x - x0) as f32, (y - y0) as f32);
+        let cl = |v: f64, n: u32| (v.max(0.0) as u32).min(n - 1);
+        let (xa, xb, ya, yb) = (cl(x0, w), cl(x0 + 1.0, w), cl(y0, h), cl(y0 + 1.0, h));
+        let (p00, p10) = (img.get_pixel(xa, ya).0, img.get_pixel(xb, ya).0);
+        let (p01, p11) = (img.get_pixel(xa, yb).0, img.get_pixel(xb, yb).0);
+        std::array::from_fn(|k| {
+            let top = p00[k] + (p10[k] - p00[k]) * fx;
+            let bot = p01[k] + (p11[k] - p01[k]) * fx;
+            top + (bot - top) * fy
+        })
+    }
+
+    /// Trilinear sample with a footprint of `texels` photo pixels.
+    fn sample(&self, px: &Point2<f64>, footprint: f64) -> [f32; 3] {
+        let lod = footprint.max(1.0).log2().min(self.levels.len() as f64);
+        let l0 = lod.floor() as usize;
+        let a = self.bilinear(l0, px);
+        if lod == l0 as f64 {
+            return a;
+        }
+        let b = self.bilinear(l0 + 1, px);
+        let t = (lod - l0 as f64) as f32;
+        std::array::from_fn(|k| a[k] + (b[k] - a[k]) * t)
+    }
+}
+
+/// Stage 3: resamples the bound photographs into a `size` x `size` atlas (page 0 of the mesh's
+/// UVs). `normals` are unit vertex normals of `mesh`.
+pub fn resample(
+    mesh: &Mesh,
+    normals: &[Vector3<f64>],
+    binding: &Binding,
+    photos: &[Photo],
+    size: u32,
+    opts: &ResampleOptions,
+    progress: &dyn Progress,
+) -> Result<Resampled> {
+    if binding.offsets.len() != mesh.num_vertices() + 1 || normals.len() != mesh.num_vertices() {
+        return Err(Error::Invalid(
+            "binding and normals must belong to the mesh being resampled".into(),
+        ));
+    }
+    let bind_opts = &binding.options;
+    let map = TexelMap::new(mesh, size)?;
+    let n = map.size;
+    let face_check = (bind_opts.method == Method::Robust
+        && bind_opts.consistency == Consistency::Face)
+        .then_some(bind_opts.consistency_threshold);
+    let common = Common::new(mesh, binding, face_check);
+    let classes = classes_from(mesh, binding, &common);
+    let (vertex_colors, filled_per_round, vertices_unreachable) =
+        fill_vertex_colors(mesh, &binding.vertex_colors());
+    let mean_edge = mesh.mean_edge_length();
+    // Accumulators: weighted colour sum and weight, photographs counted.
+    let mut acc = vec![[0f32; 4]; n * n];
+    let mut views = vec![0u8; n * n];
+    progress.start("resampling", photos.len() as u64);
+    for_each_photo(photos, progress, |pi, rgb, _mask| {
+        let view = &photos[pi].view;
+        let robust = bind_opts.method == Method::Robust;
+        let depth = robust.then(|| DepthMap::render(mesh, view, bind_opts.depth_resolution));
+        let pyramid = PhotoPyramid::new(rgb, if robust { 8 } else { 0 });
+        let centre = view.pose.center();
+        let focal = focal_px(view);
+        let photo = pi as u32;
+        acc.par_chunks_mut(BAND * n)
+            .zip(views.par_chunks_mut(BAND * n))
+            .zip(map.bands.par_iter())
+            .enumerate()
+            .for_each(|(bi, ((acc, views), list))| {
+                let y0 = bi * BAND;
+                let y1 = y0 + acc.len() / n;
+                for &f in list {
+                    if common.of(f as usize).binary_search(&photo).is_err() {
+                        continue;
+                    }
+                    let r = map.faces[f as usize]
+                        .as_ref()
+                        .expect("listed faces rasterise");
+                    let fv = mesh.faces[f as usize];
+                    let pos: [Point3<f64>; 3] =
+                        std::array::from_fn(|k| mesh.positions[fv[k].idx()]);
+                    let nrm: [Vector3<f64>; 3] = std::array::from_fn(|k| normals[fv[k].idx()]);
+                    for y in r.rows.0.max(y0)..=r.rows.1.min(y1 - 1) {
+                        for x in r.cols.0..=r.cols.1 {
+                            let i = (y - y0) * n + x;
+                            if map.owner[y * n + x] != f {
+                                continue;
+                            }
+                            let b = clamp_bary(r.bary(x, y));
+                            let p = Point3::from(
+                                pos[0].coords * b[0] + pos[1].coords * b[1] + pos[2].coords * b[2],
+                            );
+                            let nn = (nrm[0] * b[0] + nrm[1] * b[1] + nrm[2] * b[2])
+                                .try_normalize(1e-12)
+                                .unwrap_or(nrm[0]);
+                            let to_cam = centre - p;
+                            let cos = nn.dot(&to_cam) / to_cam.norm().max(1e-300);
+                            let cam = view.pose.transform(&p);
+                            if cam.z <= 0.0 {
+                                continue;
+                            }
+                            let Some(px) = view.camera.project(&cam) else {
+                                continue;
+                            };
+                            let (c, w) = if let Some(d) = &depth {
+                                if cos <= 0.0 || !view.camera.contains(&px) {
+                                    continue;
+                                }
+                                let tol = depth_tolerance(mean_edge, cam.z, focal * d.scale, cos);
+                                if cam.z > d.min_around(&px, 1) as f64 + tol {
+                                    continue;
+                                }
+                                let footprint = r.texel_len * focal / cam.z;
+                                let w = (cos * (focal * mean_edge / cam.z).powi(2))
+                                    .powf(bind_opts.weight_power);
+                                (pyramid.sample(&px, footprint), w)
+                            } else {
+                                // The paper: every common photograph, weight <N, V>.
+                                (pyramid.bilinear(0, &px), cos.max(0.0))
+                            };
+                            let w = w as f32;
+                            let a = &mut acc[i];
+                            for k in 0..3 {
+                                a[k] += w * c[k];
+                            }
+                            a[3] += w;
+                            views[i] = views[i].saturating_add(1);
+                        }
+                    }
+                }
+            });
+        Ok(())
+    })?;
+    progress.finish();
+    // Resolve every chart texel: photographs, else vertex colours.
+    let mut color = vec![0f32; n * n * 3];
+    let mut source = vec![TexelSource::Empty as u8; n * n];
+    color
+        .par_chunks_mut(3 * n)
+        .zip(source.par_chunks_mut(n))
+        .enumerate()
+        .for_each(|(y, (crow, srow))| {
+            for x in 0..n {
+                let f = map.owner[y * n + x];
+                if f == NO_FACE {
+                    continue;
+                }
+                let a = acc[y * n + x];
+                let out = &mut crow[3 * x..3 * x + 3];
+                if a[3] > 0.0 {
+                    for k in 0..3 {
+                        out[k] = a[k] / a[3];
+                    }
+                    srow[x] = TexelSource::Photos as u8;
+                    continue;
+                }
+                let r = map.faces[f as usize].as_ref().expect("owners rasterise");
+                let b = clamp_bary(r.bary(x, y));
+                let fv = mesh.faces[f as usize];
+                for k in 0..3 {
+                    out[k] = (0..3)
+                        .map(|j| vertex_colors[fv[j].idx()][k] * b[j] as f32)
+                        .sum();
+                }
+                srow[x] = match classes[f as usize] {
+                    FaceClass::Green => TexelSource::GreenFallback,
+                    FaceClass::Blue => TexelSource::Blue,
+                    FaceClass::Red => TexelSource::Red,
+                } as u8;
+            }
+        });
+    drop(acc);
+    let gutter = extend_into_gutter(&mut color, &mut source, n, opts.gutter_fill);
+    let count = |s: TexelSource| source.par_iter().filter(|&&v| v == s as u8).count() as u64;
+    let stats = ResampleStats {
+        green: classes.iter().filter(|c| **c == FaceClass::Green).count() as u64,
+        blue: classes.iter().filter(|c| **c == FaceClass::Blue).count() as u64,
+        red: classes.iter().filter(|c| **c == FaceClass::Red).count() as u64,
+        texels_photos: count(TexelSource::Photos),
+        texels_green_fallback: count(TexelSource::GreenFallback),
+        texels_blue: count(TexelSource::Blue),
+        texels_red: count(TexelSource::Red),
+        texels_gutter: gutter,
+        filled_per_round,
+        vertices_unreachable,
+    };
+    Ok(Resampled {
+        color: Rgb32FImage::from_raw(n as u32, n as u32, color).expect("sized n*n*3"),
+        source,
+        views,
+        classes,
+        vertex_colors,
+        stats,
+    })
+}
+
+/// Extends chart colours `width` texels into the empty texels around them, ring by ring (each
+/// new texel the mean of its already-coloured 8-neighbours). Returns the texels filled.
+fn extend_into_gutter(color: &mut [f32], source: &mut [u8], n: usize, width: u32) -> u64 {
+    let empty = TexelSource::Empty as u8;
+    let nbrs = |i: usize| {
+        let (x, y) = ((i % n) as i64, (i / n) as i64);
+        (-1i64..=1)
+            .flat_map(move |dy| (-1i64..=1).map(move |dx| (x + dx, y + dy)))
+            .filter(move |&(xx, yy)| {
+                (xx, yy) != (x, y) && xx >= 0 && yy >= 0 && xx < n as i64 && yy < n as i64
+            })
+            .map(move |(xx, yy)| yy as usize * n + xx as usize)
+    };
+    let mut frontier: Vec<usize> = (0..n * n)
+        .into_par_iter()
+        .filter(|&i| source[i] == empty && nbrs(i).any(|j| source[j] != empty))
+        .collect();
+    let mut filled = 0u64;
+    for _ in 0..width {
+        if frontier.is_empty() {
+            break;
+        }
+        let new: Vec<(usize, [f32; 3])> = frontier
+            .par_iter()
+            .map(|&i| {
+                let mut c = [0f32; 3];
+                let mut m = 0f32;
+                for j in nbrs(i) {
+                    if source[j] != empty {
+                        for k in 0..3 {
+                            c[k] += color[3 * j + k];
+                        }
+                        m += 1.0;
+                    }
+                }
+                (i, c.map(|v| v / m.max(1.0)))
+            })
+            .collect();
+        for (i, c) in &new {
+            color[3 * i..3 * i + 3].copy_from_slice(c);
+            source[*i] = TexelSource::Gutter as u8;
+        }
+        filled += new.len() as u64;
+        let mut next: Vec<usize> = new
+            .iter()
+            .flat_map(|(i, _)| nbrs(*i))
+            .filter(|&j| source[j] == empty)
+            .collect();
+        next.sort_unstable();
+        next.dedup();
+        frontier = next;
+    }
+    filled
+}
