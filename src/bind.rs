@@ -16,6 +16,7 @@
 use crate::depth::{focal_px, DepthMap};
 use crate::error::{Error, Result};
 use crate::mesh::{FaceId, Mesh};
+use crate::photometric::Gains;
 use crate::progress::Progress;
 use crate::scene::Photo;
 use image::{GrayImage, Rgb32FImage};
@@ -257,9 +258,26 @@ pub struct Binding {
     /// The options the binding was made with (resampling follows the same method, depth
     /// resolution and consistency rule).
     pub options: BindOptions,
+    /// Per-photograph gains the sample colours were corrected by (identity until
+    /// [`crate::photometric::normalise`]); resampling corrects texels the same way.
+    pub gains: Gains,
 }
 
 impl Binding {
+    /// A binding from compressed rows (`offsets` one per vertex plus one) over `photos`
+    /// photographs, with default options and no rejections recorded.
+    pub fn from_samples(offsets: Vec<u32>, samples: Vec<ViewSample>, photos: usize) -> Binding {
+        Binding {
+            offsets,
+            samples,
+            photos,
+            rejections: Rejections::default(),
+            per_photo: Vec::new(),
+            options: BindOptions::default(),
+            gains: Gains::identity(photos),
+        }
+    }
+
     /// Valid views of vertex `v`.
     pub fn views(&self, v: usize) -> &[ViewSample] {
         &self.samples[self.offsets[v] as usize..self.offsets[v + 1] as usize]
@@ -608,6 +626,7 @@ pub fn bind(
         rejections,
         per_photo,
         options: *opts,
+        gains: Gains::identity(photos.len()),
     };
     if opts.method == Method::Robust && opts.consistency == Consistency::Vertex {
         drop_inconsistent(&mut binding, opts.consistency_threshold);

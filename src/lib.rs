@@ -11,6 +11,7 @@
 //! | 0. load | [`scene::Scene::load`] | [`scene::SceneSpec`] -> [`mesh::Mesh`], [`camera::colmap::Reconstruction`], [`scene::Photo`]s (lazily decoded) |
 //! | 1. atlas | [`atlas::parameterize`] | [`mesh::Mesh`] + view direction -> mesh with per-corner UVs, [`atlas::AtlasReport`] |
 //! | 2. bind | [`bind::bind`] | [`mesh::Mesh`] + normals + [`scene::Photo`]s -> [`bind::Binding`] (valid views per vertex) |
+//! | 2b. gains | [`photometric::normalise`] | [`bind::Binding`] + normals -> the binding with per-photograph gain fields applied (exposure, white balance, shading) |
 //! | 3. resample | [`resample::resample`] | [`mesh::Mesh`] + [`bind::Binding`] + photos -> [`resample::Resampled`] (atlas colour, texel sources, triangle classes) |
 //! | 4. merge *(planned)* | `merge::merge(&Layers, &Masks, &MergeOptions)` | -> `Texture` + unseen mask |
 //! | 5. restore *(planned)* | `restore::inpaint(&Texture, &Mask, &RestoreOptions)` | -> `Texture` (every texel filled) |
@@ -33,6 +34,7 @@ pub mod eval;
 pub mod info;
 pub mod io;
 pub mod mesh;
+pub mod photometric;
 pub mod pipeline;
 pub mod progress;
 pub mod render;

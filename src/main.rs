@@ -124,6 +124,15 @@ enum Command {
         /// Robust method: exponent on the projected-area view weight.
         #[arg(long, default_value_t = 1.0)]
         weight_power: f64,
+        /// Per-photograph gains solved from overlaps: off, exposure (gain per channel) or
+        /// lighting (also shading by surface normal). Default: lighting, off with
+        /// --method paper.
+        #[arg(long)]
+        gains: Option<scantex::photometric::GainModel>,
+        /// With --gains lighting, keep the shading all photographs share (their average
+        /// lighting) in the texture instead of dividing it out to leave albedo.
+        #[arg(long)]
+        no_delight: bool,
         /// Longest side of the per-photograph depth map, pixels.
         #[arg(long, default_value_t = 2048)]
         depth_resolution: u32,
@@ -251,6 +260,9 @@ struct ViewArgs {
     /// Object masks directory (white = object); overrides the scene directory's masks/.
     #[arg(long)]
     masks: Option<PathBuf>,
+    /// Leave out registered images whose photograph file is absent instead of failing.
+    #[arg(long)]
+    skip_missing: bool,
 }
 
 impl ViewArgs {
@@ -261,6 +273,7 @@ impl ViewArgs {
             colmap: self.colmap,
             images: self.images,
             masks: self.masks,
+            skip_missing: self.skip_missing,
         }
     }
 }
@@ -337,6 +350,8 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             consistency,
             consistency_threshold,
             weight_power,
+            gains,
+            no_delight,
             depth_resolution,
             gutter_fill,
             debug_dir,
@@ -354,6 +369,11 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
                 (None, false) => ViewWeight::MeanPhotoDirection,
             };
             opts.bind.method = method;
+            opts.photometric.model = gains.unwrap_or(match method {
+                scantex::bind::Method::Paper => scantex::photometric::GainModel::Off,
+                scantex::bind::Method::Robust => scantex::photometric::GainModel::Lighting,
+            });
+            opts.photometric.delight = !no_delight;
             opts.bind.background = match background.as_str() {
                 "auto" => scantex::bind::Background::Estimate,
                 "off" => scantex::bind::Background::Off,

@@ -8,6 +8,7 @@ use crate::bind::{self, BindOptions, Rejections};
 use crate::error::{Error, Result};
 use crate::io::{self, EncodedTexture, Staged};
 use crate::mesh::Mesh;
+use crate::photometric::{self, GainModel, Gains, PhotometricOptions};
 use crate::progress::Progress;
 use crate::resample::{self, ResampleOptions, ResampleStats, Resampled};
 use crate::scene::Photo;
@@ -67,6 +68,9 @@ pub struct TextureOptions {
     pub view_weight: ViewWeight,
     /// Binding (method, background, consistency, weights).
     pub bind: BindOptions,
+    /// Per-photograph gains (exposure, white balance, shading). Default:
+    /// [`PhotometricOptions::default`] (lighting model). [`TextureOptions::paper`] turns it off.
+    pub photometric: PhotometricOptions,
     /// Resampling (gutter fill).
     pub resample: ResampleOptions,
     /// Atlas file format. Default: PNG.
@@ -74,10 +78,19 @@ pub struct TextureOptions {
 }
 
 impl TextureOptions {
+    /// The paper's method throughout: paper binding and resampling, no photometric gains.
+    pub fn paper() -> TextureOptions {
+        let mut o = TextureOptions::default();
+        o.bind.method = bind::Method::Paper;
+        o.photometric.model = GainModel::Off;
+        o
+    }
+
     /// Checks every stage's options.
     pub fn validate(&self) -> Result<()> {
         self.atlas.validate()?;
         self.bind.validate()?;
+        self.photometric.validate()?;
         if self.atlas.pack.texels_per_unit.is_some() {
             return Err(Error::Invalid(
                 "texturing writes one atlas page: a fixed texel density is not supported here"
@@ -112,6 +125,8 @@ pub struct TextureReport {
     pub faces: usize,
     /// Photographs used.
     pub photos: usize,
+    /// Registered images left out because their file is absent (`--skip-missing`).
+    pub photos_skipped: Vec<String>,
     /// The view direction the atlas weighted by, if any.
     pub view_dir: Option<[f64; 3]>,
     /// The atlas stage's report.
@@ -124,6 +139,8 @@ pub struct TextureReport {
     pub rejections: Rejections,
     /// Per photograph: vertices bound and background colour used.
     pub per_photo: Vec<bind::PhotoBinding>,
+    /// Per-photograph gains and how far they brought the photographs together.
+    pub gains: Gains,
     /// Triangles per class and texels per source.
     pub resample: ResampleStats,
     /// Of the chart texels some photograph saw, the fraction coloured from photographs.
@@ -187,6 +204,10 @@ pub fn texture(
     let normals = m.vertex_normals();
     let binding = bind::bind(&m, &normals, photos, &opts.bind, progress)?;
     stage("bind", &mut t);
+    progress.start("gains", 1);
+    let binding = photometric::normalise(binding, &normals, &opts.photometric);
+    progress.finish();
+    stage("gains", &mut t);
     let resampled = resample::resample(
         &m,
         &normals,
@@ -205,12 +226,14 @@ pub fn texture(
         vertices: m.num_vertices(),
         faces: m.num_faces(),
         photos: photos.len(),
+        photos_skipped: Vec::new(),
         view_dir: view_dir.map(|v| [v.x, v.y, v.z]),
         atlas: atlas_report,
         vertices_bound: binding.bound_vertices(),
         vertices_unbound: m.num_vertices() - binding.bound_vertices(),
         rejections: binding.rejections,
-        per_photo: binding.per_photo,
+        per_photo: binding.per_photo.clone(),
+        gains: binding.gains.clone(),
         resample: resampled.stats.clone(),
         completeness_seen: if seen > 0 {
             s.texels_photos as f64 / seen as f64
@@ -308,7 +331,8 @@ pub fn texture_scene(
         ));
     }
     scene.check_photos()?;
-    let result = texture(mesh, &scene.photos, opts, progress)?;
+    let mut result = texture(mesh, &scene.photos, opts, progress)?;
+    result.report.photos_skipped = scene.skipped.clone();
     write_outputs(out, &result, opts.format, debug)?;
     Ok(result)
 }

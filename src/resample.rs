@@ -531,6 +531,7 @@ pub fn resample(
         ));
     }
     let bind_opts = &binding.options;
+    let identity = binding.gains.is_identity();
     let map = TexelMap::new(mesh, size)?;
     let n = map.size;
     let face_check = (bind_opts.method == Method::Robust
@@ -608,6 +609,11 @@ pub fn resample(
                             } else {
                                 // The paper: every common photograph, weight <N, V>.
                                 (pyramid.bilinear(0, &px), cos.max(0.0))
+                            };
+                            let c = if identity {
+                                c
+                            } else {
+                                binding.gains.correct(pi, &nn, c)
                             };
                             let w = w as f32;
                             let a = &mut acc[i];

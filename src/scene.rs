@@ -25,6 +25,9 @@ pub struct SceneSpec {
     /// Directory of object masks (white = object), named like the photos (optionally `.png`
     /// appended, as COLMAP does).
     pub masks: Option<PathBuf>,
+    /// Leave out registered images whose photograph file is absent (held out, or deleted as
+    /// bad) instead of failing on them. Default: false.
+    pub skip_missing: bool,
 }
 
 /// The resolved locations of a scene's parts; `None` where the scene has no such part.
@@ -191,7 +194,10 @@ impl Photo {
                 &self.path,
                 std::io::Error::new(
                     std::io::ErrorKind::NotFound,
-                    format!("photograph of image {} not found", self.image_id),
+                    format!(
+                        "photograph of image {} not found (--skip-missing leaves such images out)",
+                        self.image_id
+                    ),
                 ),
             )),
             PhotoStatus::Unreadable(msg) => Err(Error::Invalid(msg)),
@@ -259,6 +265,9 @@ pub struct Scene {
     pub reconstruction: Option<Reconstruction>,
     /// Registered photographs, in image-id order (empty without a COLMAP model).
     pub photos: Vec<Photo>,
+    /// Names of registered images left out because their file is absent
+    /// ([`SceneSpec::skip_missing`]).
+    pub skipped: Vec<String>,
 }
 
 impl Scene {
@@ -272,15 +281,26 @@ impl Scene {
         }
         let mesh = paths.mesh.as_deref().map(io::read_mesh).transpose()?;
         let reconstruction = paths.colmap.as_deref().map(colmap::read).transpose()?;
-        let photos = match &reconstruction {
+        let mut photos = match &reconstruction {
             Some(rec) => photos_of(rec, &paths),
             None => Vec::new(),
         };
+        let mut skipped = Vec::new();
+        if spec.skip_missing {
+            photos.retain(|p| {
+                let present = p.status() != PhotoStatus::Missing;
+                if !present {
+                    skipped.push(p.name.clone());
+                }
+                present
+            });
+        }
         Ok(Scene {
             paths,
             mesh,
             reconstruction,
             photos,
+            skipped,
         })
     }
 
