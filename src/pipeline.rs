@@ -143,7 +143,9 @@ pub struct TextureReport {
     pub gains: Gains,
     /// Triangles per class and texels per source.
     pub resample: ResampleStats,
-    /// Of the chart texels some photograph saw, the fraction coloured from photographs.
+    /// Of the texels of green triangles (all three vertices seen by one photograph), the
+    /// fraction coloured from photographs; the rest are hidden from every photograph at texel
+    /// precision (robust) and take vertex colours.
     pub completeness_seen: f64,
     /// Per-stage time and peak memory.
     pub stages: Vec<StageReport>,
@@ -203,6 +205,15 @@ pub fn texture(
     stage("atlas", &mut t);
     let normals = m.vertex_normals();
     let binding = bind::bind(&m, &normals, photos, &opts.bind, progress)?;
+    if binding.bound_vertices() == 0 {
+        let r = &binding.rejections;
+        return Err(Error::Invalid(format!(
+            "no photograph sees any vertex of the mesh (vertex-photograph pairs rejected: \
+             {} outside the image, {} facing away, {} silhouette, {} occluded, {} masked out, \
+             {} background); check that the mesh and the COLMAP model share one frame",
+            r.outside, r.facing, r.silhouette, r.occluded, r.mask, r.background
+        )));
+    }
     stage("bind", &mut t);
     progress.start("gains", 1);
     let binding = photometric::normalise(binding, &normals, &opts.photometric);

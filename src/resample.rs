@@ -153,35 +153,40 @@ struct Common {
 }
 
 impl Common {
-    /// With `face_check` (threshold), photographs whose face colour disagrees with the other
-    /// common photographs' are left out of that face's list.
-    fn new(mesh: &Mesh, b: &Binding, face_check: Option<f32>) -> Self {
+    /// Per face, the photographs valid at all three vertices (the paper's common photographs),
+    /// or with `any_vertex` those valid at one vertex at least (per-texel occlusion then decides
+    /// where on the face each one sees). With `face_check` (threshold), photographs whose face
+    /// colour disagrees with the others' are left out of that face's list.
+    fn new(mesh: &Mesh, b: &Binding, face_check: Option<f32>, any_vertex: bool) -> Self {
         let lists: Vec<Vec<u32>> = mesh
             .faces
             .par_iter()
             .map(|f| {
-                let [a, bb, c] = [f[0].idx(), f[1].idx(), f[2].idx()].map(|v| b.views(v));
-                let mut photos = Vec::new();
-                let mut colors = Vec::new();
-                for s in a {
-                    let (Ok(j), Ok(k)) = (
-                        bb.binary_search_by_key(&s.photo, |t| t.photo),
-                        c.binary_search_by_key(&s.photo, |t| t.photo),
-                    ) else {
-                        continue;
-                    };
-                    photos.push(s.photo);
-                    colors.push(std::array::from_fn(|ch| {
-                        (s.color[ch] + bb[j].color[ch] + c[k].color[ch]) / 3.0
-                    }));
+                let views = [f[0].idx(), f[1].idx(), f[2].idx()].map(|v| b.views(v));
+                // Per photograph: colour sum and vertices seeing it (views are photo-sorted).
+                let mut found: Vec<(u32, [f32; 3], u32)> = Vec::new();
+                for vs in &views {
+                    for s in *vs {
+                        match found.iter_mut().find(|e| e.0 == s.photo) {
+                            Some(e) => {
+                                (0..3).for_each(|k| e.1[k] += s.color[k]);
+                                e.2 += 1;
+                            }
+                            None => found.push((s.photo, s.color, 1)),
+                        }
+                    }
                 }
+                found.retain(|e| any_vertex || e.2 == 3);
+                found.sort_unstable_by_key(|e| e.0);
+                let colors: Vec<[f32; 3]> =
+                    found.iter().map(|e| e.1.map(|c| c / e.2 as f32)).collect();
+                let photos = found.into_iter().map(|e| e.0);
                 match face_check {
                     Some(t) => photos
-                        .into_iter()
                         .zip(consistent(&colors, t))
                         .filter_map(|(p, ok)| ok.then_some(p))
                         .collect(),
-                    None => photos,
+                    None => photos.collect(),
                 }
             })
             .collect();
@@ -202,7 +207,7 @@ impl Common {
 
 /// Classifies every face (green, blue, red).
 pub fn classify(mesh: &Mesh, b: &Binding) -> Vec<FaceClass> {
-    let common = Common::new(mesh, b, None);
+    let common = Common::new(mesh, b, None, false);
     classes_from(mesh, b, &common)
 }
 
@@ -537,8 +542,11 @@ pub fn resample(
     let face_check = (bind_opts.method == Method::Robust
         && bind_opts.consistency == Consistency::Face)
         .then_some(bind_opts.consistency_threshold);
-    let common = Common::new(mesh, binding, face_check);
-    let classes = classes_from(mesh, binding, &common);
+    let robust = bind_opts.method == Method::Robust;
+    let classes = classes_from(mesh, binding, &Common::new(mesh, binding, None, false));
+    // The paper samples the common photographs of green faces only; robust tries every
+    // photograph valid at any vertex and lets the per-texel depth test decide.
+    let common = Common::new(mesh, binding, face_check, robust);
     let (vertex_colors, filled_per_round, vertices_unreachable) =
         fill_vertex_colors(mesh, &binding.vertex_colors());
     let mean_edge = mesh.mean_edge_length();
@@ -546,9 +554,8 @@ pub fn resample(
     let mut acc = vec![[0f32; 4]; n * n];
     let mut views = vec![0u8; n * n];
     progress.start("resampling", photos.len() as u64);
-    for_each_photo(photos, progress, |pi, rgb, _mask| {
+    for_each_photo(photos, progress, |pi, rgb, mask| {
         let view = &photos[pi].view;
-        let robust = bind_opts.method == Method::Robust;
         let depth = robust.then(|| DepthMap::render(mesh, view, bind_opts.depth_resolution));
         let pyramid = PhotoPyramid::new(rgb, if robust { 8 } else { 0 });
         let centre = view.pose.center();
@@ -597,6 +604,17 @@ pub fn resample(
                             let (c, w) = if let Some(d) = &depth {
                                 if cos <= 0.0 || !view.camera.contains(&px) {
                                     continue;
+                                }
+                                // Masks decide per texel too: a face seen at one vertex may
+                                // leave the object's outline elsewhere.
+                                if let Some(m) = mask {
+                                    let (mx, my) = (px.x as u32, px.y as u32);
+                                    if mx >= m.width()
+                                        || my >= m.height()
+                                        || m.get_pixel(mx, my)[0] < 128
+                                    {
+                                        continue;
+                                    }
                                 }
                                 let tol = depth_tolerance(mean_edge, cam.z, focal * d.scale, cos);
                                 if cam.z > d.min_around(&px, 1) as f64 + tol {

@@ -46,13 +46,15 @@ pub fn rows(v: &serde_json::Value) -> Vec<Vec<f64>> {
     v.as_array().unwrap().iter().map(f64s).collect()
 }
 
-/// Copies every file of `src` (not recursive) into `dst`.
+/// Copies `src` into `dst`, subdirectories included.
 pub fn copy_dir(src: &Path, dst: &Path) {
     std::fs::create_dir_all(dst).unwrap();
     for e in std::fs::read_dir(src).unwrap() {
         let e = e.unwrap();
         if e.path().is_file() {
             std::fs::copy(e.path(), dst.join(e.file_name())).unwrap();
+        } else if e.path().is_dir() {
+            copy_dir(&e.path(), &dst.join(e.file_name()));
         }
     }
 }
