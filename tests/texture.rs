@@ -252,10 +252,7 @@ fn default_beats_paper_on_held_out_views() {
                 dir: Some(scene.join("heldout")),
                 ..Default::default()
             },
-            &scantex::eval::EvalOptions {
-                gain_fit: true,
-                ..Default::default()
-            },
+            &scantex::eval::EvalOptions { gain_fit: true },
         )
         .unwrap();
         psnr.push(rep.mean.unwrap().psnr);
