@@ -354,51 +354,53 @@ pub fn solve(binding: &Binding, normals: &[Vector3<f64>], opts: &PhotometricOpti
     }
 }
 
-/// The shading common to all photographs: per channel, the order-2 fit of the consensus
-/// colour over the normal, divided by its mean (so that mean brightness is kept).
+/// The shading common to all photographs: the order-2 fit of the consensus grey level over the
+/// normal, divided by its mean (so that mean brightness is kept); the same for every channel.
 fn shading_of_consensus(
     consensus: &[[f32; 3]],
     used: &[bool],
     basis_of: &[[f64; TERMS]],
     ridge: f64,
 ) -> [[f32; TERMS]; 3] {
-    std::array::from_fn(|k| {
-        let mut a = SMatrix::<f64, TERMS, TERMS>::zeros();
-        let mut b = SVector::<f64, TERMS>::zeros();
-        let mut mean = 0.0;
-        let mut wsum = 0.0;
-        for ((c, u), y) in consensus.iter().zip(used).zip(basis_of) {
-            if !u {
-                continue;
-            }
-            // Every bound vertex counts once: the prior is over the surface, not the views.
-            let row = SVector::<f64, TERMS>::from_row_slice(y);
-            a += row * row.transpose();
-            b += c[k] as f64 * row;
-            mean += c[k] as f64;
-            wsum += 1.0;
+    let mut identity = [0f32; TERMS];
+    identity[0] = 1.0;
+    let mut a = SMatrix::<f64, TERMS, TERMS>::zeros();
+    let mut b = SVector::<f64, TERMS>::zeros();
+    let mut mean = 0.0;
+    let mut count = 0.0;
+    for ((c, u), y) in consensus.iter().zip(used).zip(basis_of) {
+        if !u {
+            continue;
         }
-        let mut identity = [0f32; TERMS];
-        identity[0] = 1.0;
-        if wsum < 4.0 * TERMS as f64 || mean <= 1e-9 {
-            return identity;
+        // Every bound vertex counts once: the prior is over the surface, not the views. Grey,
+        // as for the per-photograph fields.
+        let g: f64 = c.iter().map(|&v| v as f64).sum();
+        let row = SVector::<f64, TERMS>::from_row_slice(y);
+        a += row * row.transpose();
+        b += g * row;
+        mean += g;
+        count += 1.0;
+    }
+    if count < 4.0 * TERMS as f64 || mean <= 1e-9 {
+        return [identity; 3];
+    }
+    // As for the per-photograph fits: a narrow range of normals leaves the shading flat.
+    for j in 1..TERMS {
+        a[(j, j)] += ridge * count;
+    }
+    match a.cholesky() {
+        Some(ch) => {
+            let x = ch.solve(&b) * (count / mean);
+            [std::array::from_fn(|j| x[j] as f32); 3]
         }
-        // As for the per-photograph fits: a narrow range of normals leaves the shading flat.
-        for j in 1..TERMS {
-            a[(j, j)] += ridge * wsum;
-        }
-        match a.cholesky() {
-            Some(ch) => {
-                let x = ch.solve(&b) * (wsum / mean);
-                std::array::from_fn(|j| x[j] as f32)
-            }
-            None => identity,
-        }
-    })
+        None => [identity; 3],
+    }
 }
 
-/// Least-squares gain field of one photograph. Photographs with too few observations keep
-/// gain 1.
+/// Least-squares gain field of one photograph: a grey shading field over the normal (light is
+/// taken as colourless: a per-channel field would read the hue of albedo that happens to vary
+/// with the normal as lighting), times one white-balance factor per channel. Photographs with
+/// too few observations keep gain 1.
 fn fit_photo(
     obs: &[Obs],
     robust_w: &[f32],
@@ -410,46 +412,61 @@ fn fit_photo(
     if obs.len() < 4 * terms {
         return PhotoGain::IDENTITY;
     }
-    let mut out = PhotoGain::IDENTITY;
-    for (k, coeffs) in out.coeffs.iter_mut().enumerate() {
-        let mut a = SMatrix::<f64, TERMS, TERMS>::zeros();
-        let mut b = SVector::<f64, TERMS>::zeros();
-        let mut energy = 0.0;
-        let mut ratio = 0.0;
-        for (o, rw) in obs.iter().zip(robust_w) {
-            let m = consensus[o.vertex as usize][k] as f64;
-            let w = (o.weight * rw) as f64;
-            let row = SVector::<f64, TERMS>::from_fn(|j, _| {
-                if j < terms {
-                    basis_of[o.vertex as usize][j] * m
-                } else {
-                    0.0
-                }
-            });
-            a += w * row * row.transpose();
-            b += w * o.color[k] as f64 * row;
-            energy += w * m * m;
-            ratio += w * o.color[k] as f64 * m;
-        }
-        if energy <= 1e-12 {
-            continue;
-        }
-        // Ridge on the normal-dependent terms only; unused terms pinned to zero.
-        for j in 1..TERMS {
-            a[(j, j)] += if j < terms { ridge * energy } else { 1.0 };
-        }
-        match a.cholesky() {
-            Some(ch) => {
-                let x = ch.solve(&b);
-                *coeffs = std::array::from_fn(|j| x[j] as f32);
+    let grey = |c: &[f32; 3]| c.iter().map(|&v| v as f64).sum::<f64>();
+    let mut a = SMatrix::<f64, TERMS, TERMS>::zeros();
+    let mut b = SVector::<f64, TERMS>::zeros();
+    let mut energy = 0.0;
+    for (o, rw) in obs.iter().zip(robust_w) {
+        let m = grey(&consensus[o.vertex as usize]);
+        let w = (o.weight * rw) as f64;
+        let row = SVector::<f64, TERMS>::from_fn(|j, _| {
+            if j < terms {
+                basis_of[o.vertex as usize][j] * m
+            } else {
+                0.0
             }
-            None => {
-                *coeffs = [0.0; TERMS];
-                coeffs[0] = (ratio / energy) as f32;
-            }
+        });
+        a += w * row * row.transpose();
+        b += w * grey(&o.color) * row;
+        energy += w * m * m;
+    }
+    if energy <= 1e-12 {
+        return PhotoGain::IDENTITY;
+    }
+    // Ridge on the normal-dependent terms only; unused terms pinned to zero.
+    for j in 1..TERMS {
+        a[(j, j)] += if j < terms { ridge * energy } else { 1.0 };
+    }
+    let Some(ch) = a.cholesky() else {
+        return PhotoGain::IDENTITY;
+    };
+    let shade = ch.solve(&b);
+    let at = |v: usize| {
+        basis_of[v]
+            .iter()
+            .zip(shade.iter())
+            .map(|(y, c)| y * c)
+            .sum::<f64>()
+    };
+    // White balance: per channel, the least-squares factor on top of the grey field.
+    let mut num = [0f64; 3];
+    let mut den = [0f64; 3];
+    for (o, rw) in obs.iter().zip(robust_w) {
+        let w = (o.weight * rw) as f64;
+        let s = at(o.vertex as usize);
+        let m = consensus[o.vertex as usize];
+        for k in 0..3 {
+            let p = s * m[k] as f64;
+            num[k] += w * o.color[k] as f64 * p;
+            den[k] += w * p * p;
         }
     }
-    out
+    PhotoGain {
+        coeffs: std::array::from_fn(|k| {
+            let wb = if den[k] > 1e-12 { num[k] / den[k] } else { 1.0 };
+            std::array::from_fn(|j| (shade[j] * wb) as f32)
+        }),
+    }
 }
 
 #[cfg(test)]
