@@ -136,6 +136,10 @@ enum Command {
         /// Longest side of the per-photograph depth map, pixels.
         #[arg(long, default_value_t = 2048)]
         depth_resolution: u32,
+        /// Robust method: most photographs sampled per face, the heaviest at its vertices; 0 =
+        /// all.
+        #[arg(long, default_value_t = 12)]
+        max_views: usize,
         /// Gutter texels filled by extending chart colours.
         #[arg(long, default_value_t = 8)]
         gutter_fill: u32,
@@ -353,6 +357,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             gains,
             no_delight,
             depth_resolution,
+            max_views,
             gutter_fill,
             debug_dir,
             quiet,
@@ -389,6 +394,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             opts.bind.weight_power = weight_power;
             opts.bind.depth_resolution = depth_resolution;
             opts.resample.gutter_fill = gutter_fill;
+            opts.resample.max_views = max_views;
             opts.format = format;
             let progress: Box<dyn scantex::progress::Progress> = if quiet {
                 Box::new(scantex::progress::Silent)

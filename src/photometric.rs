@@ -192,11 +192,17 @@ impl Gains {
     /// `color` as photograph `photo` saw it at a surface with normal `n`, mapped to the
     /// consensus.
     pub fn correct(&self, photo: usize, n: &Vector3<f64>, color: [f32; 3]) -> [f32; 3] {
+        let f = self.factor(photo, n);
+        std::array::from_fn(|k| color[k] * f[k])
+    }
+
+    /// The factor [`Gains::correct`] multiplies photograph `photo`'s colours by at normal `n`.
+    pub fn factor(&self, photo: usize, n: &Vector3<f64>) -> [f32; 3] {
         let g = self.per_photo[photo].at(n);
         let c = self.common.at(n);
         let lo = 1.0 / self.max_gain;
         std::array::from_fn(|k| {
-            color[k] / (g[k].clamp(lo, self.max_gain) * c[k].clamp(lo, self.max_gain))
+            1.0 / (g[k].clamp(lo, self.max_gain) * c[k].clamp(lo, self.max_gain))
         })
     }
 

@@ -62,11 +62,18 @@ pub struct ResampleOptions {
     /// Texels of gutter around every chart filled by extending the chart's colours, so that
     /// bilinear filtering and mip-mapping never pull in empty texels. Default: 8.
     pub gutter_fill: u32,
+    /// Robust method: at most this many photographs per face, those with the largest weight
+    /// at its vertices (the rest add little and cost time in proportion); 0 = all.
+    /// Default: 12.
+    pub max_views: usize,
 }
 
 impl Default for ResampleOptions {
     fn default() -> Self {
-        ResampleOptions { gutter_fill: 8 }
+        ResampleOptions {
+            gutter_fill: 8,
+            max_views: 12,
+        }
     }
 }
 
@@ -157,37 +164,48 @@ impl Common {
     /// or with `any_vertex` those valid at one vertex at least (per-texel occlusion then decides
     /// where on the face each one sees). With `face_check` (threshold), photographs whose face
     /// colour disagrees with the others' are left out of that face's list.
-    fn new(mesh: &Mesh, b: &Binding, face_check: Option<f32>, any_vertex: bool) -> Self {
+    fn new(
+        mesh: &Mesh,
+        b: &Binding,
+        face_check: Option<f32>,
+        any_vertex: bool,
+        max_views: usize,
+    ) -> Self {
         let lists: Vec<Vec<u32>> = mesh
             .faces
             .par_iter()
             .map(|f| {
                 let views = [f[0].idx(), f[1].idx(), f[2].idx()].map(|v| b.views(v));
-                // Per photograph: colour sum and vertices seeing it (views are photo-sorted).
-                let mut found: Vec<(u32, [f32; 3], u32)> = Vec::new();
+                // Per photograph: colour sum, vertices seeing it, weight sum.
+                let mut found: Vec<(u32, [f32; 3], u32, f32)> = Vec::new();
                 for vs in &views {
                     for s in *vs {
                         match found.iter_mut().find(|e| e.0 == s.photo) {
                             Some(e) => {
                                 (0..3).for_each(|k| e.1[k] += s.color[k]);
                                 e.2 += 1;
+                                e.3 += s.weight;
                             }
-                            None => found.push((s.photo, s.color, 1)),
+                            None => found.push((s.photo, s.color, 1, s.weight)),
                         }
                     }
                 }
                 found.retain(|e| any_vertex || e.2 == 3);
                 found.sort_unstable_by_key(|e| e.0);
-                let colors: Vec<[f32; 3]> =
-                    found.iter().map(|e| e.1.map(|c| c / e.2 as f32)).collect();
-                let photos = found.into_iter().map(|e| e.0);
-                match face_check {
-                    Some(t) => photos
-                        .zip(consistent(&colors, t))
-                        .filter_map(|(p, ok)| ok.then_some(p))
-                        .collect(),
-                    None => photos.collect(),
+                if let Some(t) = face_check {
+                    let colors: Vec<[f32; 3]> =
+                        found.iter().map(|e| e.1.map(|c| c / e.2 as f32)).collect();
+                    let mut ok = consistent(&colors, t).into_iter();
+                    found.retain(|_| ok.next().unwrap_or(true));
                 }
+                if max_views > 0 && found.len() > max_views {
+                    // Heaviest first, ties by photograph index (deterministic), then back to
+                    // photograph order for the binary searches.
+                    found.sort_unstable_by(|a, b| b.3.total_cmp(&a.3).then(a.0.cmp(&b.0)));
+                    found.truncate(max_views);
+                    found.sort_unstable_by_key(|e| e.0);
+                }
+                found.into_iter().map(|e| e.0).collect()
             })
             .collect();
         let mut offsets = Vec::with_capacity(lists.len() + 1);
@@ -207,7 +225,7 @@ impl Common {
 
 /// Classifies every face (green, blue, red).
 pub fn classify(mesh: &Mesh, b: &Binding) -> Vec<FaceClass> {
-    let common = Common::new(mesh, b, None, false);
+    let common = Common::new(mesh, b, None, false, 0);
     classes_from(mesh, b, &common)
 }
 
@@ -519,6 +537,9 @@ impl<'a> PhotoPyramid<'a> {
     }
 }
 
+/// Largest pixel extent of a triangle resampled through an affine texel -> pixel map.
+const AFFINE_PX: f64 = 8.0;
+
 /// Stage 3: resamples the bound photographs into a `size` x `size` atlas (page 0 of the mesh's
 /// UVs). `normals` are unit vertex normals of `mesh`.
 pub fn resample(
@@ -543,10 +564,16 @@ pub fn resample(
         && bind_opts.consistency == Consistency::Face)
         .then_some(bind_opts.consistency_threshold);
     let robust = bind_opts.method == Method::Robust;
-    let classes = classes_from(mesh, binding, &Common::new(mesh, binding, None, false));
+    let classes = classes_from(mesh, binding, &Common::new(mesh, binding, None, false, 0));
     // The paper samples the common photographs of green faces only; robust tries every
     // photograph valid at any vertex and lets the per-texel depth test decide.
-    let common = Common::new(mesh, binding, face_check, robust);
+    let common = Common::new(
+        mesh,
+        binding,
+        face_check,
+        robust,
+        if robust { opts.max_views } else { 0 },
+    );
     let (vertex_colors, filled_per_round, vertices_unreachable) =
         fill_vertex_colors(mesh, &binding.vertex_colors());
     let mean_edge = mesh.mean_edge_length();
@@ -556,7 +583,8 @@ pub fn resample(
     progress.start("resampling", photos.len() as u64);
     for_each_photo(photos, progress, |pi, rgb, mask| {
         let view = &photos[pi].view;
-        let depth = robust.then(|| DepthMap::render(mesh, view, bind_opts.depth_resolution));
+        let depth =
+            robust.then(|| DepthMap::render(mesh, view, bind_opts.depth_resolution).eroded(1));
         let pyramid = PhotoPyramid::new(rgb, if robust { 8 } else { 0 });
         let centre = view.pose.center();
         let focal = focal_px(view);
@@ -579,6 +607,35 @@ pub fn resample(
                     let pos: [Point3<f64>; 3] =
                         std::array::from_fn(|k| mesh.positions[fv[k].idx()]);
                     let nrm: [Vector3<f64>; 3] = std::array::from_fn(|k| normals[fv[k].idx()]);
+                    // Per face: the vertices in the camera and, for triangles a few pixels
+                    // across, an affine map texel -> pixel (the perspective and distortion
+                    // error over such a triangle is far below a pixel); per-texel projection
+                    // otherwise.
+                    let cams: [Vector3<f64>; 3] = pos.map(|p| view.pose.transform(&p));
+                    let affine = if cams.iter().all(|c| c.z > 0.0) {
+                        let q = cams.map(|c| view.camera.project(&c));
+                        match q {
+                            [Some(a), Some(b), Some(c)]
+                                if (a - b).norm().max((b - c).norm()).max((c - a).norm())
+                                    < AFFINE_PX =>
+                            {
+                                let cos: [f64; 3] = std::array::from_fn(|k| {
+                                    let to_cam = centre - pos[k];
+                                    nrm[k].dot(&to_cam) / to_cam.norm().max(1e-300)
+                                });
+                                Some(([a, b, c], cos))
+                            }
+                            _ => None,
+                        }
+                    } else {
+                        None
+                    };
+                    // Gain corrections at the vertices, interpolated (the fields are smooth).
+                    let gain: [[f32; 3]; 3] = if identity {
+                        [[1.0; 3]; 3]
+                    } else {
+                        nrm.map(|nv| binding.gains.factor(pi, &nv))
+                    };
                     for y in r.rows.0.max(y0)..=r.rows.1.min(y1 - 1) {
                         for x in r.cols.0..=r.cols.1 {
                             let i = (y - y0) * n + x;
@@ -586,20 +643,36 @@ pub fn resample(
                                 continue;
                             }
                             let b = clamp_bary(r.bary(x, y));
-                            let p = Point3::from(
-                                pos[0].coords * b[0] + pos[1].coords * b[1] + pos[2].coords * b[2],
-                            );
-                            let nn = (nrm[0] * b[0] + nrm[1] * b[1] + nrm[2] * b[2])
-                                .try_normalize(1e-12)
-                                .unwrap_or(nrm[0]);
-                            let to_cam = centre - p;
-                            let cos = nn.dot(&to_cam) / to_cam.norm().max(1e-300);
-                            let cam = view.pose.transform(&p);
-                            if cam.z <= 0.0 {
-                                continue;
-                            }
-                            let Some(px) = view.camera.project(&cam) else {
-                                continue;
+                            let (px, z, cos) = match &affine {
+                                Some((q, cv)) => (
+                                    Point2::from(
+                                        q[0].coords * b[0]
+                                            + q[1].coords * b[1]
+                                            + q[2].coords * b[2],
+                                    ),
+                                    cams[0].z * b[0] + cams[1].z * b[1] + cams[2].z * b[2],
+                                    cv[0] * b[0] + cv[1] * b[1] + cv[2] * b[2],
+                                ),
+                                None => {
+                                    let p = Point3::from(
+                                        pos[0].coords * b[0]
+                                            + pos[1].coords * b[1]
+                                            + pos[2].coords * b[2],
+                                    );
+                                    let nn = (nrm[0] * b[0] + nrm[1] * b[1] + nrm[2] * b[2])
+                                        .try_normalize(1e-12)
+                                        .unwrap_or(nrm[0]);
+                                    let to_cam = centre - p;
+                                    let cos = nn.dot(&to_cam) / to_cam.norm().max(1e-300);
+                                    let cam = view.pose.transform(&p);
+                                    if cam.z <= 0.0 {
+                                        continue;
+                                    }
+                                    let Some(px) = view.camera.project(&cam) else {
+                                        continue;
+                                    };
+                                    (px, cam.z, cos)
+                                }
                             };
                             let (c, w) = if let Some(d) = &depth {
                                 if cos <= 0.0 || !view.camera.contains(&px) {
@@ -616,22 +689,31 @@ pub fn resample(
                                         continue;
                                     }
                                 }
-                                let tol = depth_tolerance(mean_edge, cam.z, focal * d.scale, cos);
-                                if cam.z > d.min_around(&px, 1) as f64 + tol {
+                                let tol = depth_tolerance(mean_edge, z, focal * d.scale, cos);
+                                if z > d.at(&px) as f64 + tol {
                                     continue;
                                 }
-                                let footprint = r.texel_len * focal / cam.z;
-                                let w = (cos * (focal * mean_edge / cam.z).powi(2))
-                                    .powf(bind_opts.weight_power);
+                                let footprint = r.texel_len * focal / z;
+                                let area = cos * (focal * mean_edge / z).powi(2);
+                                let w = if bind_opts.weight_power == 1.0 {
+                                    area
+                                } else {
+                                    area.powf(bind_opts.weight_power)
+                                };
                                 (pyramid.sample(&px, footprint), w)
                             } else {
                                 // The paper: every common photograph, weight <N, V>.
                                 (pyramid.bilinear(0, &px), cos.max(0.0))
                             };
-                            let c = if identity {
+                            let c: [f32; 3] = if identity {
                                 c
                             } else {
-                                binding.gains.correct(pi, &nn, c)
+                                let bf = b.map(|v| v as f32);
+                                std::array::from_fn(|k| {
+                                    c[k] * (gain[0][k] * bf[0]
+                                        + gain[1][k] * bf[1]
+                                        + gain[2][k] * bf[2])
+                                })
                             };
                             let w = w as f32;
                             let a = &mut acc[i];
