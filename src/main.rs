@@ -409,7 +409,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
                 progress.as_ref(),
             )?;
             let r = &result.report;
-            let total: f64 = r.stages.iter().map(|s| s.seconds).sum();
+            let total = r.seconds;
             eprintln!(
                 "textured {} faces from {} photographs in {:.1} s: {} of {} vertices bound; \
                  triangles {} green, {} blue, {} red; wrote {}",

@@ -147,8 +147,10 @@ pub struct TextureReport {
     /// fraction coloured from photographs; the rest are hidden from every photograph at texel
     /// precision (robust) and take vertex colours.
     pub completeness_seen: f64,
-    /// Per-stage time and peak memory.
+    /// Per-stage time and peak memory (atlas and bind run concurrently: their times overlap).
     pub stages: Vec<StageReport>,
+    /// Wall time of stages 1-3, seconds.
+    pub seconds: f64,
 }
 
 /// The product of [`texture`].
@@ -160,6 +162,17 @@ pub struct Textured {
     pub resampled: Resampled,
     /// What happened.
     pub report: TextureReport,
+}
+
+/// The report of a stage that began at `t`; restarts `t`.
+fn stage_since(name: &'static str, t: &mut Instant) -> StageReport {
+    let r = StageReport {
+        stage: name,
+        seconds: t.elapsed().as_secs_f64(),
+        peak_mb: io::peak_memory().unwrap_or(0) as f64 / 1e6,
+    };
+    *t = Instant::now();
+    r
 }
 
 /// Mean viewing direction of the photographs, if they agree enough to have one.
@@ -183,15 +196,7 @@ pub fn texture(
         ));
     }
     let mut stages = Vec::new();
-    let mut t = Instant::now();
-    let mut stage = |name: &'static str, t: &mut Instant| {
-        stages.push(StageReport {
-            stage: name,
-            seconds: t.elapsed().as_secs_f64(),
-            peak_mb: io::peak_memory().unwrap_or(0) as f64 / 1e6,
-        });
-        *t = Instant::now();
-    };
+    let wall = Instant::now();
     let mut atlas_opts = opts.atlas;
     let view_dir = match opts.view_weight {
         ViewWeight::MeanPhotoDirection => mean_view_dir(photos),
@@ -199,12 +204,62 @@ pub fn texture(
         ViewWeight::Off => None,
     };
     atlas_opts.flatten.stretch.view_dir = view_dir;
-    progress.start("atlas", 1);
-    let (m, atlas_report) = atlas::parameterize(mesh, &atlas_opts)?;
-    progress.finish();
-    stage("atlas", &mut t);
-    let normals = m.vertex_normals();
-    let binding = bind::bind(&m, &normals, photos, &opts.bind, progress)?;
+    // The atlas only adds UVs to the welded mesh, and binding needs no UVs: the two run side
+    // by side, so binding's photo decoding fills the cores the packer leaves idle.
+    let mut welded = mesh.clone();
+    welded.uv = None;
+    welded.texture = None;
+    welded.weld();
+    let normals = welded.vertex_normals();
+    let timed = |f: &dyn Fn() -> Result<()>| -> Result<(f64, f64)> {
+        let t = Instant::now();
+        f()?;
+        Ok((
+            t.elapsed().as_secs_f64(),
+            io::peak_memory().unwrap_or(0) as f64 / 1e6,
+        ))
+    };
+    let atlas_out = std::sync::Mutex::new(None);
+    let bind_out = std::sync::Mutex::new(None);
+    let (atlas_time, bind_time) = rayon::join(
+        || {
+            timed(&|| {
+                *atlas_out.lock().expect("not poisoned") =
+                    Some(atlas::parameterize(mesh, &atlas_opts)?);
+                Ok(())
+            })
+        },
+        || {
+            timed(&|| {
+                *bind_out.lock().expect("not poisoned") =
+                    Some(bind::bind(&welded, &normals, photos, &opts.bind, progress)?);
+                Ok(())
+            })
+        },
+    );
+    let (atlas_time, bind_time) = (atlas_time?, bind_time?);
+    let (m, atlas_report) = atlas_out
+        .into_inner()
+        .expect("not poisoned")
+        .expect("atlas ran");
+    let binding = bind_out
+        .into_inner()
+        .expect("not poisoned")
+        .expect("binding ran");
+    if m.positions != welded.positions || m.faces != welded.faces {
+        return Err(Error::Invalid(
+            "internal: the atlas changed the welded mesh's vertices".into(),
+        ));
+    }
+    drop(welded);
+    for (name, (seconds, peak_mb)) in [("atlas", atlas_time), ("bind", bind_time)] {
+        stages.push(StageReport {
+            stage: name,
+            seconds,
+            peak_mb,
+        });
+    }
+    let mut t = Instant::now();
     if binding.bound_vertices() == 0 {
         let r = &binding.rejections;
         return Err(Error::Invalid(format!(
@@ -214,11 +269,10 @@ pub fn texture(
             r.outside, r.facing, r.silhouette, r.occluded, r.mask, r.background
         )));
     }
-    stage("bind", &mut t);
     progress.start("gains", 1);
     let binding = photometric::normalise(binding, &normals, &opts.photometric);
     progress.finish();
-    stage("gains", &mut t);
+    stages.push(stage_since("gains", &mut t));
     let resampled = resample::resample(
         &m,
         &normals,
@@ -228,7 +282,7 @@ pub fn texture(
         &opts.resample,
         progress,
     )?;
-    stage("resample", &mut t);
+    stages.push(stage_since("resample", &mut t));
     let s = &resampled.stats;
     let seen = s.texels_photos + s.texels_green_fallback;
     let report = TextureReport {
@@ -252,6 +306,7 @@ pub fn texture(
             1.0
         },
         stages,
+        seconds: wall.elapsed().as_secs_f64(),
     };
     Ok(Textured {
         mesh: m,
