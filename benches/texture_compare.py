@@ -28,12 +28,12 @@ BIN = os.path.join(ROOT, "target", "release", "scantex")
 
 VARIANTS = [
     ("paper", ["--method", "paper"]),
-    ("default (robust, gains lighting, delight, face consistency)", []),
+    ("default (robust, gains lighting, delight, vertex consistency)", []),
     ("default, --no-delight", ["--no-delight"]),
     ("default, --gains exposure", ["--gains", "exposure"]),
     ("default, --gains off", ["--gains", "off"]),
     ("default, --consistency off", ["--consistency", "off"]),
-    ("default, --consistency vertex", ["--consistency", "vertex"]),
+    ("default, --consistency face", ["--consistency", "face"]),
     ("default, --weight-power 0 (equal weights)", ["--weight-power", "0"]),
     ("default, --weight-power 2", ["--weight-power", "2"]),
     ("paper, --gains lighting (delight)", ["--method", "paper", "--gains", "lighting"]),

@@ -114,8 +114,8 @@ enum Command {
         /// RGB distance below which a vertex's sample counts as background.
         #[arg(long, default_value_t = 0.06)]
         background_threshold: f32,
-        /// Robust method: photo-consistency check per face, per vertex, or off.
-        #[arg(long, default_value = "face")]
+        /// Robust method: photo-consistency check per vertex, per face, or off.
+        #[arg(long, default_value = "vertex")]
         consistency: scantex::bind::Consistency,
         /// Robust method: views farther than this (RGB distance) from the median of a
         /// vertex's views, and than 3 robust deviations, are dropped.

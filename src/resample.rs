@@ -845,3 +845,98 @@ fn extend_into_gutter(color: &mut [f32], source: &mut [u8], n: usize, width: u32
     }
     filled
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bind::ViewSample;
+    use crate::mesh::VertexId;
+
+    /// A strip of 2n triangles over vertices 0..2n+2 (two rows).
+    fn strip(n: u32) -> Mesh {
+        let mut m = Mesh::default();
+        for i in 0..=n {
+            m.positions.push(Point3::new(i as f64, 0.0, 0.0));
+            m.positions.push(Point3::new(i as f64, 1.0, 0.0));
+        }
+        for i in 0..n {
+            let (a, b, c, d) = (2 * i, 2 * i + 2, 2 * i + 3, 2 * i + 1);
+            m.faces.push([VertexId(a), VertexId(b), VertexId(c)]);
+            m.faces.push([VertexId(a), VertexId(c), VertexId(d)]);
+        }
+        m
+    }
+
+    fn sample(photo: u32, c: f32) -> ViewSample {
+        ViewSample {
+            photo,
+            color: [c; 3],
+            weight: 1.0,
+        }
+    }
+
+    #[test]
+    fn classes_follow_common_photographs() {
+        let m = strip(3); // vertices 0..8, faces 0..6
+                          // Photo 0 sees vertices 0-3, photo 1 sees 2-5; vertices 6, 7 unseen.
+        let mut rows: Vec<Vec<ViewSample>> = vec![Vec::new(); 8];
+        for v in 0..4 {
+            rows[v].push(sample(0, 0.5));
+        }
+        for v in 2..6 {
+            rows[v].push(sample(1, 0.5));
+        }
+        // Vertex 4 seen only by photo 1, vertex 5 too; faces (2,4,5),(2,5,3) have common
+        // photo 1; faces (4,6,7),(4,7,5) touch unseen vertices.
+        let mut offsets = vec![0u32];
+        let mut samples = Vec::new();
+        for r in &rows {
+            samples.extend(r);
+            offsets.push(samples.len() as u32);
+        }
+        let b = Binding::from_samples(offsets, samples, 2);
+        let c = classify(&m, &b);
+        assert_eq!(c[0], FaceClass::Green);
+        assert_eq!(c[2], FaceClass::Green);
+        assert_eq!(c[4], FaceClass::Red);
+        assert_eq!(c[5], FaceClass::Red);
+        // All three vertices seen, but by different photographs: blue.
+        let mut rows2 = rows.clone();
+        rows2[0] = vec![sample(1, 0.5)];
+        rows2[1] = vec![sample(1, 0.5)];
+        rows2[2] = vec![sample(0, 0.5)];
+        let mut offsets = vec![0u32];
+        let mut samples = Vec::new();
+        for r in &rows2 {
+            samples.extend(r);
+            offsets.push(samples.len() as u32);
+        }
+        let c = classify(&m, &Binding::from_samples(offsets, samples, 2));
+        assert_eq!(c[0], FaceClass::Blue);
+    }
+
+    #[test]
+    fn fill_reaches_every_connected_vertex_from_its_coloured_neighbours() {
+        let m = strip(6); // 14 vertices
+        let mut colors: Vec<Option<[f32; 3]>> = vec![None; 14];
+        colors[0] = Some([1.0, 0.0, 0.0]);
+        colors[1] = Some([1.0, 0.0, 0.0]);
+        colors[12] = Some([0.0, 0.0, 1.0]);
+        colors[13] = Some([0.0, 0.0, 1.0]);
+        let (filled, per_round, unreachable) = fill_vertex_colors(&m, &colors);
+        assert_eq!(unreachable, 0);
+        assert_eq!(per_round.iter().sum::<u64>(), 10);
+        // Known colours stay; near the red end red dominates, near the blue end blue.
+        assert_eq!(filled[0], [1.0, 0.0, 0.0]);
+        assert!(filled[2][0] > filled[2][2] && filled[11][2] > filled[11][0]);
+        assert!(filled.iter().all(|c| c.iter().all(|v| v.is_finite())));
+        // A vertex in no face is unreachable and takes the mean colour.
+        let mut m2 = m.clone();
+        m2.positions.push(Point3::new(9.0, 9.0, 9.0));
+        let mut c2 = colors.clone();
+        c2.push(None);
+        let (f2, _, unreachable) = fill_vertex_colors(&m2, &c2);
+        assert_eq!(unreachable, 1);
+        assert!((f2[14][0] - 0.5).abs() < 1e-6 && (f2[14][2] - 0.5).abs() < 1e-6);
+    }
+}
