@@ -880,11 +880,11 @@ mod tests {
         let m = strip(3); // vertices 0..8, faces 0..6
                           // Photo 0 sees vertices 0-3, photo 1 sees 2-5; vertices 6, 7 unseen.
         let mut rows: Vec<Vec<ViewSample>> = vec![Vec::new(); 8];
-        for v in 0..4 {
-            rows[v].push(sample(0, 0.5));
+        for r in &mut rows[0..4] {
+            r.push(sample(0, 0.5));
         }
-        for v in 2..6 {
-            rows[v].push(sample(1, 0.5));
+        for r in &mut rows[2..6] {
+            r.push(sample(1, 0.5));
         }
         // Vertex 4 seen only by photo 1, vertex 5 too; faces (2,4,5),(2,5,3) have common
         // photo 1; faces (4,6,7),(4,7,5) touch unseen vertices.
