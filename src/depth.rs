@@ -5,7 +5,7 @@
 
 use crate::camera::PosedCamera;
 use crate::mesh::Mesh;
-use nalgebra::{Point2, Point3, Vector3};
+use nalgebra::{Point2, Vector3};
 use rayon::prelude::*;
 
 /// Camera-frame depth (z) of the nearest surface per depth pixel; `f32::INFINITY` where the
@@ -119,24 +119,9 @@ impl DepthMap {
         })
     }
 
-    /// Smallest depth in the `(2r+1)^2` depth pixels around `px`: the nearest surface any
-    /// nearby photo pixel might mix in (antialiasing, registration error).
-    pub fn min_around(&self, px: &Point2<f64>, r: u32) -> f32 {
-        let Some((x, y)) = self.cell(px) else {
-            return f32::INFINITY;
-        };
-        let mut m = f32::INFINITY;
-        for yy in y.saturating_sub(r)..=(y + r).min(self.height - 1) {
-            let row = &self.z[(yy * self.width) as usize..((yy + 1) * self.width) as usize];
-            for &d in &row[x.saturating_sub(r) as usize..=(x + r).min(self.width - 1) as usize] {
-                m = m.min(d);
-            }
-        }
-        m
-    }
-
-    /// The map min-filtered over `(2r+1)^2` pixels: `eroded(r).at(px) == min_around(px, r)`,
-    /// one lookup instead of `(2r+1)^2` for callers that test many points.
+    /// The map min-filtered over `(2r+1)^2` pixels: at each pixel the nearest surface any
+    /// nearby photo pixel might mix in (antialiasing, registration error), one lookup for
+    /// callers that test many points.
     pub fn eroded(&self, r: u32) -> DepthMap {
         let (w, h) = (self.width as usize, self.height as usize);
         let r = r as usize;
@@ -238,11 +223,6 @@ fn raster_depth(
     }
 }
 
-/// Camera-frame depth of world point `p` in `view`.
-pub fn depth_of(view: &PosedCamera, p: &Point3<f64>) -> f64 {
-    view.pose.transform(p).z
-}
-
 /// Focal length in pixels near the image centre, measured through the camera model (works for
 /// every model, fisheyes included).
 pub fn focal_px(view: &PosedCamera) -> f64 {
@@ -261,6 +241,7 @@ mod tests {
     use super::*;
     use crate::camera::{Camera, CameraModel, Pose};
     use crate::mesh::VertexId;
+    use nalgebra::Point3;
 
     fn pinhole(w: u32, h: u32, f: f64) -> PosedCamera {
         PosedCamera {
@@ -303,13 +284,19 @@ mod tests {
         assert!(d.at(&Point2::new(150.5, 50.5)).is_infinite());
         assert!(d.near_outline(&Point2::new(111.5, 50.5), 2));
         assert!(!d.near_outline(&Point2::new(100.5, 50.5), 2));
-        assert_eq!(d.min_around(&Point2::new(101.5, 50.5), 2), 2.0);
-        // The eroded map answers min_around with one lookup, everywhere.
+        // The eroded map is the minimum over each 5x5 window, everywhere (brute force).
         let e = d.eroded(2);
-        for y in 0..100 {
-            for x in 0..200 {
+        assert_eq!(e.at(&Point2::new(101.5, 50.5)), 2.0);
+        for y in 0..100i64 {
+            for x in 0..200i64 {
+                let mut m = f32::INFINITY;
+                for yy in (y - 2).max(0)..=(y + 2).min(99) {
+                    for xx in (x - 2).max(0)..=(x + 2).min(199) {
+                        m = m.min(d.z[(yy * 200 + xx) as usize]);
+                    }
+                }
                 let p = Point2::new(x as f64 + 0.5, y as f64 + 0.5);
-                assert_eq!(e.at(&p), d.min_around(&p, 2), "at {x},{y}");
+                assert_eq!(e.at(&p), m, "at {x},{y}");
             }
         }
         assert!((focal_px(&view) - 50.0).abs() < 1e-6);

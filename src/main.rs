@@ -81,12 +81,8 @@ enum Command {
         /// Output directory.
         #[arg(short, long)]
         out: PathBuf,
-        /// Atlas size in texels.
-        #[arg(long, default_value_t = 4096)]
-        size: u32,
-        /// Gutter between charts, in texels.
-        #[arg(long, default_value_t = 4)]
-        gutter: u32,
+        #[command(flatten)]
+        atlas: AtlasArgs,
         /// paper: the paper's binding and resampling as written; robust: per-texel occlusion,
         /// projected-area weights, photo-consistency rejection.
         #[arg(long, default_value = "robust")]
@@ -101,12 +97,6 @@ enum Command {
         /// No visual-importance weight in the atlas.
         #[arg(long)]
         no_view_weight: bool,
-        /// k in the visual importance w = 1 / (<N, V> + k).
-        #[arg(long, default_value_t = 1.5)]
-        k: f64,
-        /// Smallest height/base ratio of a UV triangle (shape barrier).
-        #[arg(long, default_value_t = 0.05)]
-        alpha: f64,
         /// Background colour for the background test: auto (estimated per photograph), off,
         /// or r,g,b in [0, 1]. Masks, when the scene has them, decide instead.
         #[arg(long, default_value = "auto")]
@@ -158,21 +148,11 @@ enum Command {
         /// as <stem>_layout.png.
         #[arg(short, long)]
         out: PathBuf,
-        /// Atlas size in texels.
-        #[arg(long, default_value_t = 4096)]
-        size: u32,
-        /// Gutter between charts, in texels.
-        #[arg(long, default_value_t = 4)]
-        gutter: u32,
+        #[command(flatten)]
+        atlas: AtlasArgs,
         /// Viewing direction V of the important view (from the eye towards the object), x,y,z.
         #[arg(long, value_parser = parse_vec3)]
         view_dir: Option<[f64; 3]>,
-        /// k in the visual importance w = 1 / (<N, V> + k).
-        #[arg(long, default_value_t = 1.5)]
-        k: f64,
-        /// Smallest height/base ratio of a UV triangle (shape barrier).
-        #[arg(long, default_value_t = 0.05)]
-        alpha: f64,
         /// Write the report as JSON here.
         #[arg(long)]
         report: Option<PathBuf>,
@@ -227,6 +207,32 @@ fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
     match v.as_slice() {
         [a, b, c] if v.iter().all(|x| x.is_finite()) => Ok([*a, *b, *c]),
         _ => Err(format!("expected three numbers x,y,z, got '{s}'")),
+    }
+}
+
+/// The atlas options `texture` and `param` share.
+#[derive(Args)]
+struct AtlasArgs {
+    /// Atlas size in texels.
+    #[arg(long, default_value_t = 4096)]
+    size: u32,
+    /// Gutter between charts, in texels.
+    #[arg(long, default_value_t = 4)]
+    gutter: u32,
+    /// k in the visual importance w = 1 / (<N, V> + k).
+    #[arg(long, default_value_t = 1.5)]
+    k: f64,
+    /// Smallest height/base ratio of a UV triangle (shape barrier).
+    #[arg(long, default_value_t = 0.05)]
+    alpha: f64,
+}
+
+impl AtlasArgs {
+    fn apply(&self, opts: &mut scantex::atlas::AtlasOptions) {
+        opts.pack.size = self.size;
+        opts.pack.gutter = self.gutter;
+        opts.flatten.stretch.k = self.k;
+        opts.flatten.stretch.alpha = self.alpha;
     }
 }
 
@@ -341,14 +347,11 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
         Command::Texture {
             scene,
             out,
-            size,
-            gutter,
+            atlas,
             method,
             format,
             view_dir,
             no_view_weight,
-            k,
-            alpha,
             background,
             background_threshold,
             consistency,
@@ -364,10 +367,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
         } => {
             use scantex::pipeline::{TextureOptions, ViewWeight};
             let mut opts = TextureOptions::default();
-            opts.atlas.pack.size = size;
-            opts.atlas.pack.gutter = gutter;
-            opts.atlas.flatten.stretch.k = k;
-            opts.atlas.flatten.stretch.alpha = alpha;
+            atlas.apply(&mut opts.atlas);
             opts.view_weight = match (view_dir, no_view_weight) {
                 (_, true) => ViewWeight::Off,
                 (Some(d), false) => ViewWeight::Direction(d),
@@ -428,26 +428,20 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
         Command::Param {
             mesh,
             out,
-            size,
-            gutter,
+            atlas,
             view_dir,
-            k,
-            alpha,
             report,
             texel_density,
             uniform_density,
         } => {
             let (input, _) = scantex::io::read_mesh(&mesh)?;
             let mut opts = scantex::atlas::AtlasOptions::default();
-            opts.pack.size = size;
-            opts.pack.gutter = gutter;
+            atlas.apply(&mut opts);
             opts.flatten.stretch.view_dir = view_dir.map(nalgebra::Vector3::from);
-            opts.flatten.stretch.k = k;
-            opts.flatten.stretch.alpha = alpha;
             opts.pack.texels_per_unit = texel_density;
             opts.budget_by_energy = !uniform_density;
             let (out_mesh, rep) = scantex::atlas::parameterize(&input, &opts)?;
-            let picture = scantex::atlas::layout_picture(&out_mesh, size.min(2048));
+            let picture = scantex::atlas::layout_picture(&out_mesh, atlas.size.min(2048));
             let png = scantex::io::image::encode_png(&image::DynamicImage::ImageRgb8(picture))?;
             scantex::io::write_mesh(&out, &out_mesh, None)?;
             let stem = out

@@ -211,54 +211,27 @@ pub fn texture(
     welded.texture = None;
     welded.weld();
     let normals = welded.vertex_normals();
-    let timed = |f: &dyn Fn() -> Result<()>| -> Result<(f64, f64)> {
-        let t = Instant::now();
-        f()?;
-        Ok((
-            t.elapsed().as_secs_f64(),
-            io::peak_memory().unwrap_or(0) as f64 / 1e6,
-        ))
-    };
-    let atlas_out = std::sync::Mutex::new(None);
-    let bind_out = std::sync::Mutex::new(None);
-    let (atlas_time, bind_time) = rayon::join(
+    let (atlas_done, bind_done) = rayon::join(
         || {
-            timed(&|| {
-                *atlas_out.lock().expect("not poisoned") =
-                    Some(atlas::parameterize(mesh, &atlas_opts)?);
-                Ok(())
-            })
+            let mut t = Instant::now();
+            atlas::parameterize(&welded, &atlas_opts).map(|r| (r, stage_since("atlas", &mut t)))
         },
         || {
-            timed(&|| {
-                *bind_out.lock().expect("not poisoned") =
-                    Some(bind::bind(&welded, &normals, photos, &opts.bind, progress)?);
-                Ok(())
-            })
+            let mut t = Instant::now();
+            bind::bind(&welded, &normals, photos, &opts.bind, progress)
+                .map(|b| (b, stage_since("bind", &mut t)))
         },
     );
-    let (atlas_time, bind_time) = (atlas_time?, bind_time?);
-    let (m, atlas_report) = atlas_out
-        .into_inner()
-        .expect("not poisoned")
-        .expect("atlas ran");
-    let binding = bind_out
-        .into_inner()
-        .expect("not poisoned")
-        .expect("binding ran");
+    let ((m, atlas_report), atlas_stage) = atlas_done?;
+    let (binding, bind_stage) = bind_done?;
+    // parameterize welds its input again, which on a welded mesh changes nothing.
     if m.positions != welded.positions || m.faces != welded.faces {
         return Err(Error::Invalid(
             "internal: the atlas changed the welded mesh's vertices".into(),
         ));
     }
     drop(welded);
-    for (name, (seconds, peak_mb)) in [("atlas", atlas_time), ("bind", bind_time)] {
-        stages.push(StageReport {
-            stage: name,
-            seconds,
-            peak_mb,
-        });
-    }
+    stages.extend([atlas_stage, bind_stage]);
     let mut t = Instant::now();
     if binding.bound_vertices() == 0 {
         let r = &binding.rejections;

@@ -100,6 +100,10 @@ pub struct ResampleStats {
     pub filled_per_round: [u64; 5],
     /// Vertices no fill could reach (components no photograph saw): the mean colour.
     pub vertices_unreachable: u64,
+    /// Seconds spent per photograph on its depth map and mip pyramid, summed.
+    pub seconds_photo_setup: f64,
+    /// Seconds spent sampling texels from photographs, summed.
+    pub seconds_texels: f64,
 }
 
 /// The resampled atlas.
@@ -580,15 +584,19 @@ pub fn resample(
     // Accumulators: weighted colour sum and weight, photographs counted.
     let mut acc = vec![[0f32; 4]; n * n];
     let mut views = vec![0u8; n * n];
+    let (mut seconds_photo_setup, mut seconds_texels) = (0.0, 0.0);
     progress.start("resampling", photos.len() as u64);
     for_each_photo(photos, progress, |pi, rgb, mask| {
         let view = &photos[pi].view;
+        let setup = std::time::Instant::now();
         let depth =
             robust.then(|| DepthMap::render(mesh, view, bind_opts.depth_resolution).eroded(1));
         let pyramid = PhotoPyramid::new(rgb, if robust { 8 } else { 0 });
         let centre = view.pose.center();
         let focal = focal_px(view);
         let photo = pi as u32;
+        seconds_photo_setup += setup.elapsed().as_secs_f64();
+        let texels = std::time::Instant::now();
         acc.par_chunks_mut(BAND * n)
             .zip(views.par_chunks_mut(BAND * n))
             .zip(map.bands.par_iter())
@@ -726,6 +734,7 @@ pub fn resample(
                     }
                 }
             });
+        seconds_texels += texels.elapsed().as_secs_f64();
         Ok(())
     })?;
     progress.finish();
@@ -780,6 +789,8 @@ pub fn resample(
         texels_gutter: gutter,
         filled_per_round,
         vertices_unreachable,
+        seconds_photo_setup,
+        seconds_texels,
     };
     Ok(Resampled {
         color: Rgb32FImage::from_raw(n as u32, n as u32, color).expect("sized n*n*3"),

@@ -8,10 +8,11 @@ use nalgebra::{Point3, Vector2};
 use scantex::mesh::{Mesh, UvMap, VertexId};
 use scantex::pipeline::{texture, write_outputs, TextureFormat, TextureOptions};
 use scantex::progress::Silent;
-use scantex::render::{load_textured, render, RayMesh, RenderOptions, Texture};
+use scantex::render::{load_textured, render, RayMesh, RenderOptions};
 use scantex::resample::TexelSource;
 use scantex::sample::SampleOptions;
 use scantex::scene::{Scene, SceneSpec};
+use std::ffi::OsStr;
 use std::path::Path;
 use std::process::Command;
 
@@ -260,8 +261,24 @@ fn default_beats_paper_on_held_out_views() {
     assert!(psnr[1] > psnr[0] + 0.3, "paper {psnr:?} default");
 }
 
-fn scantex() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_scantex"))
+/// Runs `scantex texture -q` with `args` from the repository root; returns whether it
+/// succeeded and its stderr.
+fn run_texture(args: &[&OsStr]) -> (bool, String) {
+    let o = Command::new(env!("CARGO_BIN_EXE_scantex"))
+        .args(["texture", "-q"])
+        .args(args)
+        .current_dir(common::root())
+        .output()
+        .unwrap();
+    (
+        o.status.success(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+/// `run_texture` with arguments of any string or path type.
+macro_rules! texture {
+    ($($a:expr),* $(,)?) => { run_texture(&[$(OsStr::new(&$a)),*]) };
 }
 
 #[test]
@@ -269,19 +286,16 @@ fn cli_texture_writes_every_output_and_a_texture_that_renders() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
     let debug = dir.path().join("debug");
-    let st = scantex()
-        .args(["texture", "samples/torus", "--size", "1024", "-q", "-o"])
-        .arg(&out)
-        .arg("--debug-dir")
-        .arg(&debug)
-        .current_dir(common::root())
-        .output()
-        .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
+    let (ok, err) = texture!(
+        "samples/torus",
+        "--size",
+        "1024",
+        "-o",
+        out,
+        "--debug-dir",
+        debug
     );
+    assert!(ok, "{err}");
     for f in [
         "model.obj",
         "model.mtl",
@@ -345,26 +359,8 @@ fn cli_texture_writes_every_output_and_a_texture_that_renders() {
     // 16-bit and float atlases.
     for (fmt, file) in [("png16", "model.png"), ("exr", "model.exr")] {
         let o = dir.path().join(fmt);
-        let st = scantex()
-            .args([
-                "texture",
-                "samples/torus",
-                "--size",
-                "512",
-                "-q",
-                "--format",
-                fmt,
-                "-o",
-            ])
-            .arg(&o)
-            .current_dir(common::root())
-            .output()
-            .unwrap();
-        assert!(
-            st.status.success(),
-            "{}",
-            String::from_utf8_lossy(&st.stderr)
-        );
+        let (ok, err) = texture!("samples/torus", "--size", "512", "--format", fmt, "-o", o);
+        assert!(ok, "{err}");
         let img = image::open(o.join(file)).unwrap();
         assert!(
             matches!(
@@ -377,7 +373,6 @@ fn cli_texture_writes_every_output_and_a_texture_that_renders() {
             "{fmt}: {:?}",
             img.color()
         );
-        let _ = Texture::new(&img);
     }
 }
 
@@ -389,28 +384,13 @@ fn cli_texture_fails_cleanly_and_leaves_nothing() {
     common::copy_dir(&common::root().join("samples/torus"), &scene);
     std::fs::remove_file(scene.join("images/view_03.jpg")).unwrap();
     let out = dir.path().join("out");
-    let st = scantex()
-        .args(["texture", "-q", "-o"])
-        .arg(&out)
-        .arg(&scene)
-        .output()
-        .unwrap();
-    assert!(!st.status.success());
-    let err = String::from_utf8_lossy(&st.stderr);
+    let (ok, err) = texture!("-o", out, scene);
+    assert!(!ok);
     assert!(err.contains("view_03.jpg"), "{err}");
     assert!(!out.exists() || std::fs::read_dir(&out).unwrap().next().is_none());
     // --skip-missing textures from the others.
-    let st = scantex()
-        .args(["texture", "-q", "--size", "512", "--skip-missing", "-o"])
-        .arg(&out)
-        .arg(&scene)
-        .output()
-        .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
+    let (ok, err) = texture!("--size", "512", "--skip-missing", "-o", out, scene);
+    assert!(ok, "{err}");
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
     assert_eq!(report["photos"], 15);
@@ -418,14 +398,9 @@ fn cli_texture_fails_cleanly_and_leaves_nothing() {
     // A corrupt photograph: an error naming it, no output.
     std::fs::write(scene.join("images/view_04.jpg"), b"not a jpeg").unwrap();
     let out2 = dir.path().join("out2");
-    let st = scantex()
-        .args(["texture", "-q", "--skip-missing", "-o"])
-        .arg(&out2)
-        .arg(&scene)
-        .output()
-        .unwrap();
-    assert!(!st.status.success());
-    assert!(String::from_utf8_lossy(&st.stderr).contains("view_04.jpg"));
+    let (ok, err) = texture!("--skip-missing", "-o", out2, scene);
+    assert!(!ok);
+    assert!(err.contains("view_04.jpg"), "{err}");
     assert!(!out2.join("model.obj").exists());
     // Bad options are refused before any work.
     for args in [
@@ -435,28 +410,20 @@ fn cli_texture_fails_cleanly_and_leaves_nothing() {
         vec!["--background", "1,2"],
         vec!["--format", "tiff"],
     ] {
-        let st = scantex()
-            .args(["texture", "-q", "-o"])
-            .arg(dir.path().join("never"))
-            .args(&args)
-            .arg(common::root().join("samples/torus"))
-            .output()
-            .unwrap();
-        assert!(!st.status.success(), "{args:?} accepted");
+        let never = dir.path().join("never");
+        let mut all: Vec<&OsStr> = vec![OsStr::new("-o"), never.as_os_str()];
+        all.extend(args.iter().map(OsStr::new));
+        all.push(OsStr::new("samples/torus"));
+        assert!(!run_texture(&all).0, "{args:?} accepted");
         assert!(!dir.path().join("never").join("model.obj").exists());
     }
     // A scene without photographs' cameras.
     let bare = dir.path().join("bare");
     std::fs::create_dir_all(&bare).unwrap();
     std::fs::copy(scene.join("mesh.ply"), bare.join("mesh.ply")).unwrap();
-    let st = scantex()
-        .args(["texture", "-q", "-o"])
-        .arg(dir.path().join("o3"))
-        .arg(&bare)
-        .output()
-        .unwrap();
-    assert!(!st.status.success());
-    assert!(String::from_utf8_lossy(&st.stderr).contains("COLMAP"));
+    let (ok, err) = texture!("-o", dir.path().join("o3"), bare);
+    assert!(!ok);
+    assert!(err.contains("COLMAP"), "{err}");
 }
 
 /// Binding honours masks: with every mask black nothing binds, and texturing says so
