@@ -37,6 +37,7 @@ pub mod mesh;
 pub mod photometric;
 pub mod pipeline;
 pub mod progress;
+pub mod pyramid;
 pub mod render;
 pub mod resample;
 pub mod sample;

@@ -253,6 +253,7 @@ pub fn texture(
         photos,
         opts.atlas.pack.size,
         &opts.resample,
+        false,
         progress,
     )?;
     stages.push(stage_since("resample", &mut t));

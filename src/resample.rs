@@ -19,8 +19,9 @@ use crate::depth::{focal_px, DepthMap};
 use crate::error::{Error, Result};
 use crate::mesh::{FaceId, Mesh};
 use crate::progress::Progress;
+use crate::camera::PosedCamera;
 use crate::scene::Photo;
-use image::{Rgb32FImage, RgbImage};
+use image::{GrayImage, Rgb32FImage, RgbImage};
 use nalgebra::{Point2, Point3, Vector2, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -117,6 +118,8 @@ pub struct Resampled {
     pub views: Vec<u8>,
     /// Class of each face.
     pub classes: Vec<FaceClass>,
+    /// The photograph with the largest weight at each texel ([`NO_PHOTO`] if none).
+    pub best_photo: Vec<u16>,
     /// Vertex colours after the fill (one per vertex).
     pub vertex_colors: Vec<[f32; 3]>,
     /// Counts.
@@ -158,7 +161,7 @@ impl Resampled {
 }
 
 /// Sorted photographs common to the three vertices of every face, compressed rows.
-struct Common {
+pub(crate) struct Common {
     offsets: Vec<u32>,
     photos: Vec<u32>,
 }
@@ -354,7 +357,7 @@ impl FaceRaster {
 /// Which face owns each texel: the face containing the texel centre (the first by index on a
 /// shared edge); texels a face merely touches (within 0.75 texel of it) go to the first such
 /// face if no centre lies in them, so chart borders are coloured from their own triangles.
-struct TexelMap {
+pub(crate) struct TexelMap {
     size: usize,
     faces: Vec<Option<FaceRaster>>,
     /// Faces overlapping each band, by index.
@@ -544,8 +547,327 @@ impl<'a> PhotoPyramid<'a> {
 /// Largest pixel extent of a triangle resampled through an affine texel -> pixel map.
 const AFFINE_PX: f64 = 8.0;
 
+/// The per-face work shared by every way of combining the photographs: which face owns each
+/// texel, the triangle classes, the photographs sampled per face, the filled vertex colours.
+pub(crate) struct Prepared<'a> {
+    pub(crate) mesh: &'a Mesh,
+    pub(crate) normals: &'a [Vector3<f64>],
+    pub(crate) binding: &'a Binding,
+    pub(crate) map: TexelMap,
+    pub(crate) classes: Vec<FaceClass>,
+    pub(crate) common: Common,
+    pub(crate) vertex_colors: Vec<[f32; 3]>,
+    filled_per_round: [u64; 5],
+    vertices_unreachable: u64,
+    mean_edge: f64,
+    robust: bool,
+    identity: bool,
+}
+
+/// One photograph ready to be sampled: its depth map and mip pyramid.
+pub(crate) struct PhotoSampler<'a> {
+    pub(crate) index: usize,
+    view: &'a PosedCamera,
+    depth: Option<DepthMap>,
+    pyramid: PhotoPyramid<'a>,
+    mask: Option<&'a GrayImage>,
+    centre: Point3<f64>,
+    focal: f64,
+}
+
+impl<'a> Prepared<'a> {
+    /// Checks the inputs and does the per-face work for a `size` x `size` atlas.
+    pub(crate) fn new(
+        mesh: &'a Mesh,
+        normals: &'a [Vector3<f64>],
+        binding: &'a Binding,
+        size: u32,
+        opts: &ResampleOptions,
+    ) -> Result<Self> {
+        if binding.offsets.len() != mesh.num_vertices() + 1
+            || normals.len() != mesh.num_vertices()
+        {
+            return Err(Error::Invalid(
+                "binding and normals must belong to the mesh being resampled".into(),
+            ));
+        }
+        let bind_opts = &binding.options;
+        let map = TexelMap::new(mesh, size)?;
+        let face_check = (bind_opts.method == Method::Robust
+            && bind_opts.consistency == Consistency::Face)
+            .then_some(bind_opts.consistency_threshold);
+        let robust = bind_opts.method == Method::Robust;
+        let classes = classes_from(mesh, binding, &Common::new(mesh, binding, None, false, 0));
+        // The paper samples the common photographs of green faces only; robust tries every
+        // photograph valid at any vertex and lets the per-texel depth test decide.
+        let common = Common::new(
+            mesh,
+            binding,
+            face_check,
+            robust,
+            if robust { opts.max_views } else { 0 },
+        );
+        let (vertex_colors, filled_per_round, vertices_unreachable) =
+            fill_vertex_colors(mesh, &binding.vertex_colors());
+        Ok(Prepared {
+            mesh,
+            normals,
+            binding,
+            map,
+            classes,
+            common,
+            vertex_colors,
+            filled_per_round,
+            vertices_unreachable,
+            mean_edge: mesh.mean_edge_length(),
+            robust,
+            identity: binding.gains.is_identity(),
+        })
+    }
+
+    /// Atlas side in texels.
+    pub(crate) fn size(&self) -> usize {
+        self.map.size
+    }
+
+    /// Face owning texel `i` (row-major), if any.
+    pub(crate) fn owner(&self, i: usize) -> Option<u32> {
+        let f = self.map.owner[i];
+        (f != NO_FACE).then_some(f)
+    }
+
+    /// Whether face `f` samples photograph `photo`.
+    pub(crate) fn samples(&self, f: usize, photo: u32) -> bool {
+        self.common.of(f).binary_search(&photo).is_ok()
+    }
+
+    /// Texel rows and columns (inclusive) face `f` may own, if it lies on the page.
+    pub(crate) fn face_rect(&self, f: usize) -> Option<((usize, usize), (usize, usize))> {
+        self.map.faces[f].as_ref().map(|r| (r.rows, r.cols))
+    }
+
+    /// Depth map and pyramid of photograph `pi` (decoded as `rgb`, with its mask).
+    pub(crate) fn photo(
+        &self,
+        photos: &'a [Photo],
+        pi: usize,
+        rgb: &'a Rgb32FImage,
+        mask: Option<&'a GrayImage>,
+    ) -> PhotoSampler<'a> {
+        let view = &photos[pi].view;
+        let depth = self.robust.then(|| {
+            DepthMap::render(self.mesh, view, self.binding.options.depth_resolution).eroded(1)
+        });
+        PhotoSampler {
+            index: pi,
+            view,
+            depth,
+            pyramid: PhotoPyramid::new(rgb, if self.robust { 8 } else { 0 }),
+            mask,
+            centre: view.pose.center(),
+            focal: focal_px(view),
+        }
+    }
+
+    /// Samples photograph `ph` at every texel face `f` owns in rows `y0..y1`, calling
+    /// `emit(x, y, colour, weight)` for each texel the photograph sees (gain-corrected colour;
+    /// weight `<N, V>` for the paper, projected area for robust).
+    pub(crate) fn sample_face(
+        &self,
+        ph: &PhotoSampler,
+        f: u32,
+        y0: usize,
+        y1: usize,
+        mut emit: impl FnMut(usize, usize, [f32; 3], f32),
+    ) {
+        let n = self.map.size;
+        let Some(r) = self.map.faces[f as usize].as_ref() else {
+            return;
+        };
+        let (mesh, view, pi) = (self.mesh, ph.view, ph.index);
+        let bind_opts = &self.binding.options;
+        let fv = mesh.faces[f as usize];
+        let pos: [Point3<f64>; 3] = std::array::from_fn(|k| mesh.positions[fv[k].idx()]);
+        let nrm: [Vector3<f64>; 3] = std::array::from_fn(|k| self.normals[fv[k].idx()]);
+        // Per face: the vertices in the camera and, for triangles a few pixels across, an
+        // affine map texel -> pixel (the perspective and distortion error over such a triangle
+        // is far below a pixel); per-texel projection otherwise.
+        let cams: [Vector3<f64>; 3] = pos.map(|p| view.pose.transform(&p));
+        let affine = if cams.iter().all(|c| c.z > 0.0) {
+            match cams.map(|c| view.camera.project(&c)) {
+                [Some(a), Some(b), Some(c)]
+                    if (a - b).norm().max((b - c).norm()).max((c - a).norm()) < AFFINE_PX =>
+                {
+                    let cos: [f64; 3] = std::array::from_fn(|k| {
+                        let to_cam = ph.centre - pos[k];
+                        nrm[k].dot(&to_cam) / to_cam.norm().max(1e-300)
+                    });
+                    Some(([a, b, c], cos))
+                }
+                _ => None,
+            }
+        } else {
+            None
+        };
+        // Gain corrections at the vertices, interpolated (the fields are smooth).
+        let gain: [[f32; 3]; 3] = if self.identity {
+            [[1.0; 3]; 3]
+        } else {
+            nrm.map(|nv| self.binding.gains.factor(pi, &nv))
+        };
+        for y in r.rows.0.max(y0)..=r.rows.1.min(y1 - 1) {
+            for x in r.cols.0..=r.cols.1 {
+                if self.map.owner[y * n + x] != f {
+                    continue;
+                }
+                let b = clamp_bary(r.bary(x, y));
+                let (px, z, cos) = match &affine {
+                    Some((q, cv)) => (
+                        Point2::from(q[0].coords * b[0] + q[1].coords * b[1] + q[2].coords * b[2]),
+                        cams[0].z * b[0] + cams[1].z * b[1] + cams[2].z * b[2],
+                        cv[0] * b[0] + cv[1] * b[1] + cv[2] * b[2],
+                    ),
+                    None => {
+                        let p = Point3::from(
+                            pos[0].coords * b[0] + pos[1].coords * b[1] + pos[2].coords * b[2],
+                        );
+                        let nn = (nrm[0] * b[0] + nrm[1] * b[1] + nrm[2] * b[2])
+                            .try_normalize(1e-12)
+                            .unwrap_or(nrm[0]);
+                        let to_cam = ph.centre - p;
+                        let cos = nn.dot(&to_cam) / to_cam.norm().max(1e-300);
+                        let cam = view.pose.transform(&p);
+                        if cam.z <= 0.0 {
+                            continue;
+                        }
+                        let Some(px) = view.camera.project(&cam) else {
+                            continue;
+                        };
+                        (px, cam.z, cos)
+                    }
+                };
+                let (c, w) = if let Some(d) = &ph.depth {
+                    if cos <= 0.0 || !view.camera.contains(&px) {
+                        continue;
+                    }
+                    // Masks decide per texel too: a face seen at one vertex may leave the
+                    // object's outline elsewhere.
+                    if let Some(m) = ph.mask {
+                        let (mx, my) = (px.x as u32, px.y as u32);
+                        if mx >= m.width() || my >= m.height() || m.get_pixel(mx, my)[0] < 128 {
+                            continue;
+                        }
+                    }
+                    let tol = depth_tolerance(self.mean_edge, z, ph.focal * d.scale, cos);
+                    if z > d.at(&px) as f64 + tol {
+                        continue;
+                    }
+                    let footprint = r.texel_len * ph.focal / z;
+                    let area = cos * (ph.focal * self.mean_edge / z).powi(2);
+                    let w = if bind_opts.weight_power == 1.0 {
+                        area
+                    } else {
+                        area.powf(bind_opts.weight_power)
+                    };
+                    (ph.pyramid.sample(&px, footprint), w)
+                } else {
+                    // The paper: every common photograph, weight <N, V>.
+                    (ph.pyramid.bilinear(0, &px), cos.max(0.0))
+                };
+                let c: [f32; 3] = if self.identity {
+                    c
+                } else {
+                    let bf = b.map(|v| v as f32);
+                    std::array::from_fn(|k| {
+                        c[k] * (gain[0][k] * bf[0] + gain[1][k] * bf[1] + gain[2][k] * bf[2])
+                    })
+                };
+                emit(x, y, c, w as f32);
+            }
+        }
+    }
+
+    /// Face `f`'s vertex colours interpolated at texel (x, y).
+    pub(crate) fn vertex_color_at(&self, f: u32, x: usize, y: usize) -> [f32; 3] {
+        let r = self.map.faces[f as usize]
+            .as_ref()
+            .expect("owners rasterise");
+        let b = clamp_bary(r.bary(x, y));
+        let fv = self.mesh.faces[f as usize];
+        std::array::from_fn(|k| {
+            (0..3)
+                .map(|j| self.vertex_colors[fv[j].idx()][k] * b[j] as f32)
+                .sum()
+        })
+    }
+
+    /// Source of a chart texel of face `f` no photograph coloured.
+    pub(crate) fn fallback_source(&self, f: u32) -> TexelSource {
+        match self.classes[f as usize] {
+            FaceClass::Green => TexelSource::GreenFallback,
+            FaceClass::Blue => TexelSource::Blue,
+            FaceClass::Red => TexelSource::Red,
+        }
+    }
+
+    /// Fills the gutter and counts: the last step of every merge.
+    pub(crate) fn finish(
+        self,
+        mut color: Vec<f32>,
+        mut source: Vec<u8>,
+        views: Vec<u8>,
+        best: Vec<u16>,
+        opts: &ResampleOptions,
+        seconds: (f64, f64),
+    ) -> Resampled {
+        let n = self.map.size;
+        let gutter = extend_into_gutter(&mut color, &mut source, n, opts.gutter_fill);
+        let count = |s: TexelSource| source.par_iter().filter(|&&v| v == s as u8).count() as u64;
+        let classes = self.classes;
+        let stats = ResampleStats {
+            green: classes.iter().filter(|c| **c == FaceClass::Green).count() as u64,
+            blue: classes.iter().filter(|c| **c == FaceClass::Blue).count() as u64,
+            red: classes.iter().filter(|c| **c == FaceClass::Red).count() as u64,
+            texels_photos: count(TexelSource::Photos),
+            texels_green_fallback: count(TexelSource::GreenFallback),
+            texels_blue: count(TexelSource::Blue),
+            texels_red: count(TexelSource::Red),
+            texels_gutter: gutter,
+            filled_per_round: self.filled_per_round,
+            vertices_unreachable: self.vertices_unreachable,
+            seconds_photo_setup: seconds.0,
+            seconds_texels: seconds.1,
+        };
+        Resampled {
+            color: Rgb32FImage::from_raw(n as u32, n as u32, color).expect("sized n*n*3"),
+            source,
+            views,
+            best_photo: best,
+            classes,
+            vertex_colors: self.vertex_colors,
+            stats,
+        }
+    }
+}
+
+/// No photograph (in [`Resampled::best_photo`]).
+pub const NO_PHOTO: u16 = u16::MAX;
+
+/// Texels record their best photograph in 16 bits.
+pub(crate) fn check_photo_count(n: usize) -> Result<()> {
+    if n >= NO_PHOTO as usize {
+        return Err(Error::Invalid(format!(
+            "{n} photographs: at most {} can be combined in one atlas",
+            NO_PHOTO - 1
+        )));
+    }
+    Ok(())
+}
+
 /// Stage 3: resamples the bound photographs into a `size` x `size` atlas (page 0 of the mesh's
-/// UVs). `normals` are unit vertex normals of `mesh`.
+/// UVs), each texel the weighted mean of the photographs that see it (`winner` false) or the
+/// colour of the one with the largest weight (`winner` true). `normals` are unit vertex
+/// normals of `mesh`.
 pub fn resample(
     mesh: &Mesh,
     normals: &[Vector3<f64>],
@@ -553,185 +875,55 @@ pub fn resample(
     photos: &[Photo],
     size: u32,
     opts: &ResampleOptions,
+    winner: bool,
     progress: &dyn Progress,
 ) -> Result<Resampled> {
-    if binding.offsets.len() != mesh.num_vertices() + 1 || normals.len() != mesh.num_vertices() {
-        return Err(Error::Invalid(
-            "binding and normals must belong to the mesh being resampled".into(),
-        ));
-    }
-    let bind_opts = &binding.options;
-    let identity = binding.gains.is_identity();
-    let map = TexelMap::new(mesh, size)?;
-    let n = map.size;
-    let face_check = (bind_opts.method == Method::Robust
-        && bind_opts.consistency == Consistency::Face)
-        .then_some(bind_opts.consistency_threshold);
-    let robust = bind_opts.method == Method::Robust;
-    let classes = classes_from(mesh, binding, &Common::new(mesh, binding, None, false, 0));
-    // The paper samples the common photographs of green faces only; robust tries every
-    // photograph valid at any vertex and lets the per-texel depth test decide.
-    let common = Common::new(
-        mesh,
-        binding,
-        face_check,
-        robust,
-        if robust { opts.max_views } else { 0 },
-    );
-    let (vertex_colors, filled_per_round, vertices_unreachable) =
-        fill_vertex_colors(mesh, &binding.vertex_colors());
-    let mean_edge = mesh.mean_edge_length();
-    // Accumulators: weighted colour sum and weight, photographs counted.
+    let prep = Prepared::new(mesh, normals, binding, size, opts)?;
+    check_photo_count(photos.len())?;
+    let n = prep.size();
+    // Accumulators: weighted colour sum and weight (or the best colour and its weight),
+    // photographs counted, best photograph.
     let mut acc = vec![[0f32; 4]; n * n];
     let mut views = vec![0u8; n * n];
+    let mut best = vec![NO_PHOTO; n * n];
     let (mut seconds_photo_setup, mut seconds_texels) = (0.0, 0.0);
     progress.start("resampling", photos.len() as u64);
     for_each_photo(photos, progress, |pi, rgb, mask| {
-        let view = &photos[pi].view;
         let setup = std::time::Instant::now();
-        let depth =
-            robust.then(|| DepthMap::render(mesh, view, bind_opts.depth_resolution).eroded(1));
-        let pyramid = PhotoPyramid::new(rgb, if robust { 8 } else { 0 });
-        let centre = view.pose.center();
-        let focal = focal_px(view);
+        let ph = prep.photo(photos, pi, rgb, mask);
         let photo = pi as u32;
         seconds_photo_setup += setup.elapsed().as_secs_f64();
         let texels = std::time::Instant::now();
         acc.par_chunks_mut(BAND * n)
             .zip(views.par_chunks_mut(BAND * n))
-            .zip(map.bands.par_iter())
+            .zip(best.par_chunks_mut(BAND * n))
+            .zip(prep.map.bands.par_iter())
             .enumerate()
-            .for_each(|(bi, ((acc, views), list))| {
+            .for_each(|(bi, (((acc, views), best), list))| {
                 let y0 = bi * BAND;
                 let y1 = y0 + acc.len() / n;
                 for &f in list {
-                    if common.of(f as usize).binary_search(&photo).is_err() {
+                    if !prep.samples(f as usize, photo) {
                         continue;
                     }
-                    let r = map.faces[f as usize]
-                        .as_ref()
-                        .expect("listed faces rasterise");
-                    let fv = mesh.faces[f as usize];
-                    let pos: [Point3<f64>; 3] =
-                        std::array::from_fn(|k| mesh.positions[fv[k].idx()]);
-                    let nrm: [Vector3<f64>; 3] = std::array::from_fn(|k| normals[fv[k].idx()]);
-                    // Per face: the vertices in the camera and, for triangles a few pixels
-                    // across, an affine map texel -> pixel (the perspective and distortion
-                    // error over such a triangle is far below a pixel); per-texel projection
-                    // otherwise.
-                    let cams: [Vector3<f64>; 3] = pos.map(|p| view.pose.transform(&p));
-                    let affine = if cams.iter().all(|c| c.z > 0.0) {
-                        let q = cams.map(|c| view.camera.project(&c));
-                        match q {
-                            [Some(a), Some(b), Some(c)]
-                                if (a - b).norm().max((b - c).norm()).max((c - a).norm())
-                                    < AFFINE_PX =>
-                            {
-                                let cos: [f64; 3] = std::array::from_fn(|k| {
-                                    let to_cam = centre - pos[k];
-                                    nrm[k].dot(&to_cam) / to_cam.norm().max(1e-300)
-                                });
-                                Some(([a, b, c], cos))
+                    prep.sample_face(&ph, f, y0, y1, |x, y, c, w| {
+                        let i = (y - y0) * n + x;
+                        let a = &mut acc[i];
+                        // Photographs come in order, so ties keep the first: deterministic.
+                        if w > a[3] {
+                            best[i] = photo as u16;
+                            if winner {
+                                *a = [c[0], c[1], c[2], w];
                             }
-                            _ => None,
                         }
-                    } else {
-                        None
-                    };
-                    // Gain corrections at the vertices, interpolated (the fields are smooth).
-                    let gain: [[f32; 3]; 3] = if identity {
-                        [[1.0; 3]; 3]
-                    } else {
-                        nrm.map(|nv| binding.gains.factor(pi, &nv))
-                    };
-                    for y in r.rows.0.max(y0)..=r.rows.1.min(y1 - 1) {
-                        for x in r.cols.0..=r.cols.1 {
-                            let i = (y - y0) * n + x;
-                            if map.owner[y * n + x] != f {
-                                continue;
-                            }
-                            let b = clamp_bary(r.bary(x, y));
-                            let (px, z, cos) = match &affine {
-                                Some((q, cv)) => (
-                                    Point2::from(
-                                        q[0].coords * b[0]
-                                            + q[1].coords * b[1]
-                                            + q[2].coords * b[2],
-                                    ),
-                                    cams[0].z * b[0] + cams[1].z * b[1] + cams[2].z * b[2],
-                                    cv[0] * b[0] + cv[1] * b[1] + cv[2] * b[2],
-                                ),
-                                None => {
-                                    let p = Point3::from(
-                                        pos[0].coords * b[0]
-                                            + pos[1].coords * b[1]
-                                            + pos[2].coords * b[2],
-                                    );
-                                    let nn = (nrm[0] * b[0] + nrm[1] * b[1] + nrm[2] * b[2])
-                                        .try_normalize(1e-12)
-                                        .unwrap_or(nrm[0]);
-                                    let to_cam = centre - p;
-                                    let cos = nn.dot(&to_cam) / to_cam.norm().max(1e-300);
-                                    let cam = view.pose.transform(&p);
-                                    if cam.z <= 0.0 {
-                                        continue;
-                                    }
-                                    let Some(px) = view.camera.project(&cam) else {
-                                        continue;
-                                    };
-                                    (px, cam.z, cos)
-                                }
-                            };
-                            let (c, w) = if let Some(d) = &depth {
-                                if cos <= 0.0 || !view.camera.contains(&px) {
-                                    continue;
-                                }
-                                // Masks decide per texel too: a face seen at one vertex may
-                                // leave the object's outline elsewhere.
-                                if let Some(m) = mask {
-                                    let (mx, my) = (px.x as u32, px.y as u32);
-                                    if mx >= m.width()
-                                        || my >= m.height()
-                                        || m.get_pixel(mx, my)[0] < 128
-                                    {
-                                        continue;
-                                    }
-                                }
-                                let tol = depth_tolerance(mean_edge, z, focal * d.scale, cos);
-                                if z > d.at(&px) as f64 + tol {
-                                    continue;
-                                }
-                                let footprint = r.texel_len * focal / z;
-                                let area = cos * (focal * mean_edge / z).powi(2);
-                                let w = if bind_opts.weight_power == 1.0 {
-                                    area
-                                } else {
-                                    area.powf(bind_opts.weight_power)
-                                };
-                                (pyramid.sample(&px, footprint), w)
-                            } else {
-                                // The paper: every common photograph, weight <N, V>.
-                                (pyramid.bilinear(0, &px), cos.max(0.0))
-                            };
-                            let c: [f32; 3] = if identity {
-                                c
-                            } else {
-                                let bf = b.map(|v| v as f32);
-                                std::array::from_fn(|k| {
-                                    c[k] * (gain[0][k] * bf[0]
-                                        + gain[1][k] * bf[1]
-                                        + gain[2][k] * bf[2])
-                                })
-                            };
-                            let w = w as f32;
-                            let a = &mut acc[i];
+                        if !winner {
                             for k in 0..3 {
                                 a[k] += w * c[k];
                             }
                             a[3] += w;
-                            views[i] = views[i].saturating_add(1);
                         }
-                    }
+                        views[i] = views[i].saturating_add(1);
+                    });
                 }
             });
         seconds_texels += texels.elapsed().as_secs_f64();
@@ -747,59 +939,32 @@ pub fn resample(
         .enumerate()
         .for_each(|(y, (crow, srow))| {
             for x in 0..n {
-                let f = map.owner[y * n + x];
-                if f == NO_FACE {
+                let Some(f) = prep.owner(y * n + x) else {
                     continue;
-                }
+                };
                 let a = acc[y * n + x];
                 let out = &mut crow[3 * x..3 * x + 3];
                 if a[3] > 0.0 {
+                    let s = if winner { 1.0 } else { a[3] };
                     for k in 0..3 {
-                        out[k] = a[k] / a[3];
+                        out[k] = a[k] / s;
                     }
                     srow[x] = TexelSource::Photos as u8;
-                    continue;
+                } else {
+                    out.copy_from_slice(&prep.vertex_color_at(f, x, y));
+                    srow[x] = prep.fallback_source(f) as u8;
                 }
-                let r = map.faces[f as usize].as_ref().expect("owners rasterise");
-                let b = clamp_bary(r.bary(x, y));
-                let fv = mesh.faces[f as usize];
-                for k in 0..3 {
-                    out[k] = (0..3)
-                        .map(|j| vertex_colors[fv[j].idx()][k] * b[j] as f32)
-                        .sum();
-                }
-                srow[x] = match classes[f as usize] {
-                    FaceClass::Green => TexelSource::GreenFallback,
-                    FaceClass::Blue => TexelSource::Blue,
-                    FaceClass::Red => TexelSource::Red,
-                } as u8;
             }
         });
     drop(acc);
-    let gutter = extend_into_gutter(&mut color, &mut source, n, opts.gutter_fill);
-    let count = |s: TexelSource| source.par_iter().filter(|&&v| v == s as u8).count() as u64;
-    let stats = ResampleStats {
-        green: classes.iter().filter(|c| **c == FaceClass::Green).count() as u64,
-        blue: classes.iter().filter(|c| **c == FaceClass::Blue).count() as u64,
-        red: classes.iter().filter(|c| **c == FaceClass::Red).count() as u64,
-        texels_photos: count(TexelSource::Photos),
-        texels_green_fallback: count(TexelSource::GreenFallback),
-        texels_blue: count(TexelSource::Blue),
-        texels_red: count(TexelSource::Red),
-        texels_gutter: gutter,
-        filled_per_round,
-        vertices_unreachable,
-        seconds_photo_setup,
-        seconds_texels,
-    };
-    Ok(Resampled {
-        color: Rgb32FImage::from_raw(n as u32, n as u32, color).expect("sized n*n*3"),
+    Ok(prep.finish(
+        color,
         source,
         views,
-        classes,
-        vertex_colors,
-        stats,
-    })
+        best,
+        opts,
+        (seconds_photo_setup, seconds_texels),
+    ))
 }
 
 /// Extends chart colours `width` texels into the empty texels around them, ring by ring (each
