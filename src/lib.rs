@@ -12,8 +12,8 @@
 //! | 1. atlas | [`atlas::parameterize`] | [`mesh::Mesh`] + view direction -> mesh with per-corner UVs, [`atlas::AtlasReport`] |
 //! | 2. bind | [`bind::bind`] | [`mesh::Mesh`] + normals + [`scene::Photo`]s -> [`bind::Binding`] (valid views per vertex) |
 //! | 2b. gains | [`photometric::normalise`] | [`bind::Binding`] + normals -> the binding with per-photograph gain fields applied (exposure, white balance, shading) |
-//! | 3. resample | [`resample::resample`] | [`mesh::Mesh`] + [`bind::Binding`] + photos -> [`resample::Resampled`] (atlas colour, texel sources, triangle classes) |
-//! | 4. merge *(planned)* | `merge::merge(&Layers, &Masks, &MergeOptions)` | -> `Texture` + unseen mask |
+//! | 3. resample | [`resample::resample`] | [`mesh::Mesh`] + [`bind::Binding`] + photos -> [`resample::Resampled`] (atlas colour, texel sources, triangle classes); stage 4 calls it per photograph and chart |
+//! | 4. merge | [`merge::merge`] | mesh + [`bind::Binding`] + photos -> [`resample::Resampled`] (photographs resampled and combined by a chart-aware multiresolution spline; texels no photograph's mask covers marked) |
 //! | 5. restore *(planned)* | `restore::inpaint(&Texture, &Mask, &RestoreOptions)` | -> `Texture` (every texel filled) |
 //! | 6. synthesize *(planned)* | `synth::fill_surface(&Mesh, &Atlas, &Texture, ..)` | -> `Texture` (large unseen regions) |
 //! | eval | [`eval::evaluate`] | textured [`mesh::Mesh`] + held-out [`scene::Photo`]s -> [`eval::EvalReport`] (PSNR, SSIM, 1-NCC, completeness) |
@@ -33,6 +33,7 @@ pub mod error;
 pub mod eval;
 pub mod info;
 pub mod io;
+pub mod merge;
 pub mod mesh;
 pub mod photometric;
 pub mod pipeline;

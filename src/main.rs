@@ -123,6 +123,26 @@ enum Command {
         /// lighting) in the texture instead of dividing it out to leave albedo.
         #[arg(long)]
         no_delight: bool,
+        /// Solve no per-photograph exposure, white balance or shading (same as --gains off):
+        /// blending alone removes the photographs' differences.
+        #[arg(long, conflicts_with = "gains")]
+        no_exposure_solve: bool,
+        /// How the photographs seen at a texel combine: none (the best-weighted photograph
+        /// alone), average (weighted mean) or multiband (multiresolution spline per chart).
+        #[arg(long, default_value = "multiband")]
+        merge: scantex::merge::Merge,
+        /// Multiband masks: paper (triangles seen with three valid vertices minus the outer
+        /// ring), weighted (view weights) or best-view (view weights, finest band from the
+        /// best photograph). Default: best-view, paper with --method paper.
+        #[arg(long)]
+        masks: Option<scantex::merge::Masks>,
+        /// Multiband: most pyramid levels per chart (a chart gets log2(longer side) - 3).
+        #[arg(long, default_value_t = 6)]
+        levels: u32,
+        /// Multiband: centre weight a of the 5-tap pyramid kernel (0.4 as the paper; OpenCV
+        /// uses 0.375).
+        #[arg(long, default_value_t = 0.4)]
+        kernel_a: f32,
         /// Longest side of the per-photograph depth map, pixels.
         #[arg(long, default_value_t = 2048)]
         depth_resolution: u32,
@@ -359,6 +379,11 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             weight_power,
             gains,
             no_delight,
+            no_exposure_solve,
+            merge,
+            masks,
+            levels,
+            kernel_a,
             depth_resolution,
             max_views,
             gutter_fill,
@@ -378,7 +403,17 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
                 scantex::bind::Method::Paper => scantex::photometric::GainModel::Off,
                 scantex::bind::Method::Robust => scantex::photometric::GainModel::Lighting,
             });
+            if no_exposure_solve {
+                opts.photometric.model = scantex::photometric::GainModel::Off;
+            }
             opts.photometric.delight = !no_delight;
+            opts.merge.merge = merge;
+            opts.merge.masks = masks.unwrap_or(match method {
+                scantex::bind::Method::Paper => scantex::merge::Masks::Paper,
+                scantex::bind::Method::Robust => scantex::merge::Masks::BestView,
+            });
+            opts.merge.levels = levels;
+            opts.merge.a = kernel_a;
             opts.bind.background = match background.as_str() {
                 "auto" => scantex::bind::Background::Estimate,
                 "off" => scantex::bind::Background::Off,

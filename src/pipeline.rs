@@ -7,10 +7,11 @@ use crate::atlas::{self, AtlasOptions, AtlasReport};
 use crate::bind::{self, BindOptions, Rejections};
 use crate::error::{Error, Result};
 use crate::io::{self, EncodedTexture, Staged};
+use crate::merge::{self, Masks, MergeOptions};
 use crate::mesh::Mesh;
 use crate::photometric::{self, GainModel, Gains, PhotometricOptions};
 use crate::progress::Progress;
-use crate::resample::{self, ResampleOptions, ResampleStats, Resampled};
+use crate::resample::{ResampleOptions, ResampleStats, Resampled};
 use crate::scene::Photo;
 use image::{DynamicImage, Rgb32FImage};
 use nalgebra::Vector3;
@@ -71,8 +72,11 @@ pub struct TextureOptions {
     /// Per-photograph gains (exposure, white balance, shading). Default:
     /// [`PhotometricOptions::default`] (lighting model). [`TextureOptions::paper`] turns it off.
     pub photometric: PhotometricOptions,
-    /// Resampling (gutter fill).
+    /// Resampling (gutter fill, views per face).
     pub resample: ResampleOptions,
+    /// Merging the photographs. Default: [`MergeOptions::default`] (multiband, best-view
+    /// masks); [`TextureOptions::paper`] uses the paper's masks.
+    pub merge: MergeOptions,
     /// Atlas file format. Default: PNG.
     pub format: TextureFormat,
 }
@@ -83,6 +87,7 @@ impl TextureOptions {
         let mut o = TextureOptions::default();
         o.bind.method = bind::Method::Paper;
         o.photometric.model = GainModel::Off;
+        o.merge.masks = Masks::Paper;
         o
     }
 
@@ -91,6 +96,7 @@ impl TextureOptions {
         self.atlas.validate()?;
         self.bind.validate()?;
         self.photometric.validate()?;
+        self.merge.validate()?;
         if self.atlas.pack.texels_per_unit.is_some() {
             return Err(Error::Invalid(
                 "texturing writes one atlas page: a fixed texel density is not supported here"
@@ -119,6 +125,8 @@ pub struct TextureReport {
     pub version: &'static str,
     /// Binding and resampling method.
     pub method: bind::Method,
+    /// How the photographs were merged.
+    pub merge: MergeOptions,
     /// Mesh vertices (after welding) and faces.
     pub vertices: usize,
     /// See `vertices`.
@@ -246,22 +254,23 @@ pub fn texture(
     let binding = photometric::normalise(binding, &normals, &opts.photometric);
     progress.finish();
     stages.push(stage_since("gains", &mut t));
-    let resampled = resample::resample(
+    let resampled = merge::merge(
         &m,
         &normals,
         &binding,
         photos,
         opts.atlas.pack.size,
         &opts.resample,
-        false,
+        &opts.merge,
         progress,
     )?;
-    stages.push(stage_since("resample", &mut t));
+    stages.push(stage_since("resample+merge", &mut t));
     let s = &resampled.stats;
     let seen = s.texels_photos + s.texels_green_fallback;
     let report = TextureReport {
         version: env!("CARGO_PKG_VERSION"),
         method: opts.bind.method,
+        merge: opts.merge,
         vertices: m.num_vertices(),
         faces: m.num_faces(),
         photos: photos.len(),

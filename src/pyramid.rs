@@ -77,6 +77,12 @@ fn rows_mut(d: &mut [f32], row: usize, par: bool, f: impl Fn(usize, &mut [f32]) 
     }
 }
 
+/// Source index `2x + t - 2` of a reduction, reflected.
+#[inline]
+fn down_tap(x: usize, t: usize, n: usize) -> usize {
+    reflect101(2 * x as isize + t as isize - 2, n)
+}
+
 /// One level down: blur with the kernel, keep even samples; `ceil(w/2)` x `ceil(h/2)`.
 pub fn reduce(src: &Plane, a: f32) -> Plane {
     let k = kernel(a);
@@ -87,22 +93,36 @@ pub fn reduce(src: &Plane, a: f32) -> Plane {
     rows_mut(&mut tmp, dw * c, par, |y, row| {
         let s = &src.d[y * w * c..(y + 1) * w * c];
         for x in 0..dw {
-            for (t, kt) in k.iter().enumerate() {
-                let sx = reflect101(2 * x as isize + t as isize - 2, w);
+            let o = &mut row[x * c..(x + 1) * c];
+            if x >= 1 && 2 * x + 2 < w {
+                // Interior: no reflection.
+                let b = (2 * x - 2) * c;
                 for ch in 0..c {
-                    row[x * c + ch] += kt * s[sx * c + ch];
+                    o[ch] = k[0] * s[b + ch]
+                        + k[1] * s[b + c + ch]
+                        + k[2] * s[b + 2 * c + ch]
+                        + k[3] * s[b + 3 * c + ch]
+                        + k[4] * s[b + 4 * c + ch];
+                }
+            } else {
+                for (t, kt) in k.iter().enumerate() {
+                    let sx = down_tap(x, t, w);
+                    for ch in 0..c {
+                        o[ch] += kt * s[sx * c + ch];
+                    }
                 }
             }
         }
     });
     let mut out = vec![0f32; dw * dh * c];
-    rows_mut(&mut out, dw * c, par, |y, row| {
-        for (t, kt) in k.iter().enumerate() {
-            let sy = reflect101(2 * y as isize + t as isize - 2, h);
-            let s = &tmp[sy * dw * c..(sy + 1) * dw * c];
-            for (o, v) in row.iter_mut().zip(s) {
-                *o += kt * v;
-            }
+    let rl = dw * c;
+    rows_mut(&mut out, rl, par, |y, row| {
+        let r: [&[f32]; 5] = std::array::from_fn(|t| {
+            let sy = down_tap(y, t, h);
+            &tmp[sy * rl..(sy + 1) * rl]
+        });
+        for (i, o) in row.iter_mut().enumerate() {
+            *o = k[0] * r[0][i] + k[1] * r[1][i] + k[2] * r[2][i] + k[3] * r[3][i] + k[4] * r[4][i];
         }
     });
     Plane {
@@ -110,6 +130,19 @@ pub fn reduce(src: &Plane, a: f32) -> Plane {
         h: dh,
         c,
         d: out,
+    }
+}
+
+/// Source index of an expansion's neighbour `j` (may be -1 or `n`): reflect-101 on the doubled
+/// grid makes source -1 read 1 and source `n` read `n - 1`.
+#[inline]
+fn up_src(j: isize, n: usize) -> usize {
+    if j < 0 {
+        1.min(n - 1)
+    } else if j as usize >= n {
+        n - 1
+    } else {
+        j as usize
     }
 }
 
@@ -124,31 +157,44 @@ pub fn expand(src: &Plane, dw: usize, dh: usize, a: f32) -> Plane {
         "expand to at most twice the size"
     );
     let par = dw * dh * c >= PAR_MIN;
-    // Horizontal: sw -> dw on every source row.
+    // Horizontal: sw -> dw on every source row. Even outputs 2j read sources j-1, j, j+1
+    // (weights k0, k2, k4); odd outputs 2j+1 read j, j+1 (k1, k3).
     let mut tmp = vec![0f32; dw * sh * c];
     rows_mut(&mut tmp, dw * c, par, |y, row| {
         let s = &src.d[y * sw * c..(y + 1) * sw * c];
         for x in 0..dw {
-            for (t, kt) in k.iter().enumerate() {
-                let p = reflect101(x as isize + t as isize - 2, 2 * sw);
-                if p % 2 == 0 {
-                    let sx = p / 2;
-                    for ch in 0..c {
-                        row[x * c + ch] += kt * s[sx * c + ch];
-                    }
+            let j = (x / 2) as isize;
+            let o = &mut row[x * c..(x + 1) * c];
+            if x % 2 == 0 {
+                let (a0, a1, a2) = (up_src(j - 1, sw), up_src(j, sw), up_src(j + 1, sw));
+                for ch in 0..c {
+                    o[ch] = k[0] * s[a0 * c + ch] + k[2] * s[a1 * c + ch] + k[4] * s[a2 * c + ch];
+                }
+            } else {
+                let (a1, a2) = (up_src(j, sw), up_src(j + 1, sw));
+                for ch in 0..c {
+                    o[ch] = k[1] * s[a1 * c + ch] + k[3] * s[a2 * c + ch];
                 }
             }
         }
     });
     let mut out = vec![0f32; dw * dh * c];
-    rows_mut(&mut out, dw * c, par, |y, row| {
-        for (t, kt) in k.iter().enumerate() {
-            let p = reflect101(y as isize + t as isize - 2, 2 * sh);
-            if p % 2 == 0 {
-                let s = &tmp[(p / 2) * dw * c..(p / 2 + 1) * dw * c];
-                for (o, v) in row.iter_mut().zip(s) {
-                    *o += kt * v;
-                }
+    let rl = dw * c;
+    rows_mut(&mut out, rl, par, |y, row| {
+        let j = (y / 2) as isize;
+        let r = |jj: isize| {
+            let sy = up_src(jj, sh);
+            &tmp[sy * rl..(sy + 1) * rl]
+        };
+        if y % 2 == 0 {
+            let (r0, r1, r2) = (r(j - 1), r(j), r(j + 1));
+            for (i, o) in row.iter_mut().enumerate() {
+                *o = k[0] * r0[i] + k[2] * r1[i] + k[4] * r2[i];
+            }
+        } else {
+            let (r1, r2) = (r(j), r(j + 1));
+            for (i, o) in row.iter_mut().enumerate() {
+                *o = k[1] * r1[i] + k[3] * r2[i];
             }
         }
     });

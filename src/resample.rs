@@ -103,8 +103,11 @@ pub struct ResampleStats {
     pub vertices_unreachable: u64,
     /// Seconds spent per photograph on its depth map and mip pyramid, summed.
     pub seconds_photo_setup: f64,
-    /// Seconds spent sampling texels from photographs, summed.
+    /// Seconds spent sampling texels from photographs (with multiband merging: also building
+    /// and adding the bands), summed.
     pub seconds_texels: f64,
+    /// Multiband merging: thread-seconds of that spent sampling texels (the rest is pyramids).
+    pub cpu_seconds_sampling: f64,
 }
 
 /// The resampled atlas.
@@ -225,7 +228,7 @@ impl Common {
         Common { offsets, photos }
     }
 
-    fn of(&self, f: usize) -> &[u32] {
+    pub(crate) fn of(&self, f: usize) -> &[u32] {
         &self.photos[self.offsets[f] as usize..self.offsets[f + 1] as usize]
     }
 }
@@ -837,6 +840,7 @@ impl<'a> Prepared<'a> {
             vertices_unreachable: self.vertices_unreachable,
             seconds_photo_setup: seconds.0,
             seconds_texels: seconds.1,
+            cpu_seconds_sampling: 0.0,
         };
         Resampled {
             color: Rgb32FImage::from_raw(n as u32, n as u32, color).expect("sized n*n*3"),
