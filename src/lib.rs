@@ -43,5 +43,6 @@ pub mod render;
 pub mod resample;
 pub mod sample;
 pub mod scene;
+pub mod seams;
 
 pub use error::{Error, Location, Result};

@@ -135,9 +135,9 @@ enum Command {
         /// ring), weighted (view weights) or best-view (view weights, finest band from the
         /// best photograph). Default: best-view, paper with --method paper.
         #[arg(long)]
-        masks: Option<scantex::merge::Masks>,
+        merge_masks: Option<scantex::merge::Masks>,
         /// Multiband: most pyramid levels per chart (a chart gets log2(longer side) - 3).
-        #[arg(long, default_value_t = 6)]
+        #[arg(long, default_value_t = 2)]
         levels: u32,
         /// Multiband: centre weight a of the 5-tap pyramid kernel (0.4 as the paper; OpenCV
         /// uses 0.375).
@@ -381,7 +381,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             no_delight,
             no_exposure_solve,
             merge,
-            masks,
+            merge_masks,
             levels,
             kernel_a,
             depth_resolution,
@@ -408,7 +408,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             }
             opts.photometric.delight = !no_delight;
             opts.merge.merge = merge;
-            opts.merge.masks = masks.unwrap_or(match method {
+            opts.merge.masks = merge_masks.unwrap_or(match method {
                 scantex::bind::Method::Paper => scantex::merge::Masks::Paper,
                 scantex::bind::Method::Robust => scantex::merge::Masks::BestView,
             });

@@ -20,8 +20,8 @@ use crate::mesh::Mesh;
 use crate::progress::Progress;
 use crate::pyramid::{self, Plane};
 use crate::resample::{
-    check_photo_count, resample, PhotoSampler, Prepared, ResampleOptions, Resampled,
-    TexelSource, NO_PHOTO,
+    check_photo_count, resample, PhotoSampler, Prepared, ResampleOptions, Resampled, TexelSource,
+    NO_PHOTO,
 };
 use crate::scene::Photo;
 use nalgebra::Vector3;
@@ -93,7 +93,9 @@ pub struct MergeOptions {
     /// Default: [`Masks::BestView`].
     pub masks: Masks,
     /// Most pyramid levels (reductions) per chart; a chart gets `log2(its longer side) - 3`
-    /// up to this (a 64-texel chart 3, a 512-texel one 6). Default: 6.
+    /// up to this (a 32-texel chart 2, a 512-texel one 6). Default: 2: deeper levels blend
+    /// view seams slightly better but open seams where charts meet (each chart's coarse bands
+    /// mix the photographs differently; `docs/decisions.md`, `benches/merge_compare.py`).
     pub levels: u32,
     /// Centre weight of the 5-tap generating kernel. Default: 0.4 (the paper's; OpenCV's is
     /// 0.375).
@@ -105,7 +107,7 @@ impl Default for MergeOptions {
         MergeOptions {
             merge: Merge::Multiband,
             masks: Masks::BestView,
-            levels: 6,
+            levels: 2,
             a: 0.4,
         }
     }
@@ -163,7 +165,7 @@ fn find_charts(prep: &Prepared, mesh: &Mesh, max_levels: u32) -> (Vec<Chart>, Ve
     let mut index_of_root = vec![u32::MAX; uv.coords.len()];
     let mut charts: Vec<Chart> = Vec::new();
     let mut face_chart = vec![u32::MAX; mesh.num_faces()];
-    for f in 0..mesh.num_faces() {
+    for (f, slot) in face_chart.iter_mut().enumerate() {
         let Some(((r0, r1), (c0, c1))) = prep.face_rect(f) else {
             continue;
         };
@@ -180,7 +182,7 @@ fn find_charts(prep: &Prepared, mesh: &Mesh, max_levels: u32) -> (Vec<Chart>, Ve
             });
         }
         let ci = index_of_root[root];
-        face_chart[f] = ci;
+        *slot = ci;
         let ch = &mut charts[ci as usize];
         ch.faces.push(f as u32);
         // w and h hold the exclusive right and bottom edges until the end.
@@ -531,7 +533,7 @@ fn multiband(
 
 /// Photograph `ph`'s layer on chart `ch`: sampled, holes filled, split into bands and added
 /// under its mask.
-#[allow(clippy::too_many_arguments)]
+#[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
 fn add_photo(
     prep: &Prepared,
     ph: &PhotoSampler,
@@ -562,10 +564,7 @@ fn add_photo(
     let pad = 4 * step;
     let ox = bx0.saturating_sub(pad) / step * step;
     let oy = by0.saturating_sub(pad) / step * step;
-    let (w, h) = (
-        (bx1 + pad).min(ch.w) - ox,
-        (by1 + pad).min(ch.h) - oy,
-    );
+    let (w, h) = ((bx1 + pad).min(ch.w) - ox, (by1 + pad).min(ch.h) - oy);
     let (cx, cy) = (ch.x0 + ox, ch.y0 + oy);
     let mut layer = Plane::zeros(w, h, 3);
     let mut valid = vec![0f32; w * h];

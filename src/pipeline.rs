@@ -13,6 +13,7 @@ use crate::photometric::{self, GainModel, Gains, PhotometricOptions};
 use crate::progress::Progress;
 use crate::resample::{ResampleOptions, ResampleStats, Resampled};
 use crate::scene::Photo;
+use crate::seams::{seam_visibility, SeamReport};
 use image::{DynamicImage, Rgb32FImage};
 use nalgebra::Vector3;
 use serde::Serialize;
@@ -151,6 +152,8 @@ pub struct TextureReport {
     pub gains: Gains,
     /// Triangles per class and texels per source.
     pub resample: ResampleStats,
+    /// Seam visibility of the atlas (1 = invisible): across view boundaries and chart borders.
+    pub seams: SeamReport,
     /// Of the texels of green triangles (all three vertices seen by one photograph), the
     /// fraction coloured from photographs; the rest are hidden from every photograph at texel
     /// precision (robust) and take vertex colours.
@@ -265,6 +268,13 @@ pub fn texture(
         progress,
     )?;
     stages.push(stage_since("resample+merge", &mut t));
+    let seams = seam_visibility(
+        &m,
+        &resampled.color,
+        &resampled.source,
+        &resampled.best_photo,
+    );
+    stages.push(stage_since("seams", &mut t));
     let s = &resampled.stats;
     let seen = s.texels_photos + s.texels_green_fallback;
     let report = TextureReport {
@@ -283,6 +293,7 @@ pub fn texture(
         per_photo: binding.per_photo.clone(),
         gains: binding.gains.clone(),
         resample: resampled.stats.clone(),
+        seams,
         completeness_seen: if seen > 0 {
             s.texels_photos as f64 / seen as f64
         } else {

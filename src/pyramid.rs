@@ -253,7 +253,11 @@ pub fn blend(images: &[Plane], masks: &[Vec<f32>], levels: usize, a: f32) -> Pla
     for (img, m) in images.iter().zip(masks) {
         assert!(img.w == w && img.h == h && img.c == c && m.len() == w * h);
         let bands = laplacian(gaussian(img.clone(), levels, a), a);
-        let mg = gaussian(Plane::from_vec(w, h, 1, m.clone()).expect("sized"), levels, a);
+        let mg = gaussian(
+            Plane::from_vec(w, h, 1, m.clone()).expect("sized"),
+            levels,
+            a,
+        );
         if num.is_empty() {
             num = bands.iter().map(|b| Plane::zeros(b.w, b.h, c)).collect();
             den = bands.iter().map(|b| vec![0f32; b.w * b.h]).collect();

@@ -15,11 +15,11 @@
 //! the atlas's accumulators plus two decoded photographs.
 
 use crate::bind::{consistent, depth_tolerance, for_each_photo, Binding, Consistency, Method};
+use crate::camera::PosedCamera;
 use crate::depth::{focal_px, DepthMap};
 use crate::error::{Error, Result};
 use crate::mesh::{FaceId, Mesh};
 use crate::progress::Progress;
-use crate::camera::PosedCamera;
 use crate::scene::Photo;
 use image::{GrayImage, Rgb32FImage, RgbImage};
 use nalgebra::{Point2, Point3, Vector2, Vector3};
@@ -587,8 +587,7 @@ impl<'a> Prepared<'a> {
         size: u32,
         opts: &ResampleOptions,
     ) -> Result<Self> {
-        if binding.offsets.len() != mesh.num_vertices() + 1
-            || normals.len() != mesh.num_vertices()
+        if binding.offsets.len() != mesh.num_vertices() + 1 || normals.len() != mesh.num_vertices()
         {
             return Err(Error::Invalid(
                 "binding and normals must belong to the mesh being resampled".into(),
@@ -872,6 +871,7 @@ pub(crate) fn check_photo_count(n: usize) -> Result<()> {
 /// UVs), each texel the weighted mean of the photographs that see it (`winner` false) or the
 /// colour of the one with the largest weight (`winner` true). `normals` are unit vertex
 /// normals of `mesh`.
+#[allow(clippy::too_many_arguments)]
 pub fn resample(
     mesh: &Mesh,
     normals: &[Vector3<f64>],

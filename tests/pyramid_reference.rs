@@ -79,7 +79,10 @@ fn two_image_blend_agrees_with_opencv_multiband_blender() {
     let ours = blend(&[ia.clone(), ib.clone()], &[ma.clone(), mb], bands, 0.375);
     // Values are 0-255: 5e-3 is 2e-5 of full scale, float32 rounding over five levels.
     let e = max_diff(&ours.d, &floats(&b["float_reference"]));
-    assert!(e < 5e-3, "float spline with OpenCV's operators: max |diff| {e} (0-255 scale)");
+    assert!(
+        e < 5e-3,
+        "float spline with OpenCV's operators: max |diff| {e} (0-255 scale)"
+    );
     let cv = floats(&b["result"]);
     let diffs: Vec<f32> = ours.d.iter().zip(&cv).map(|(x, y)| (x - y).abs()).collect();
     let mean = diffs.iter().sum::<f32>() / diffs.len() as f32;

@@ -261,6 +261,51 @@ fn default_beats_paper_on_held_out_views() {
     assert!(psnr[1] > psnr[0] + 0.3, "paper {psnr:?} default");
 }
 
+/// Multiband merging hides the seams between photographs that exposure and white balance
+/// differences leave (no gains solved, so only blending can remove them), keeps every chart
+/// texel filled, and does not spoil held-out views.
+#[test]
+fn multiband_hides_view_seams_that_winner_take_all_shows() {
+    use scantex::merge::Merge;
+    let scene = common::root().join("samples/torus");
+    let s = Scene::load(&SceneSpec {
+        dir: Some(scene.clone()),
+        ..Default::default()
+    })
+    .unwrap();
+    let (mesh, _) = s.mesh.as_ref().unwrap();
+    let mut ratios = Vec::new();
+    for merge in [Merge::None, Merge::Average, Merge::Multiband] {
+        let mut opts = TextureOptions::default();
+        opts.atlas.pack.size = 1024;
+        opts.photometric.model = scantex::photometric::GainModel::Off;
+        opts.merge.merge = merge;
+        let r = texture(mesh, &s.photos, &opts, &Silent).unwrap();
+        let seams = r.report.seams;
+        assert!(seams.view_boundary_pairs > 1000, "{seams:?}");
+        ratios.push(seams.view_boundary_ratio);
+        // Every chart texel holds a finite, non-black colour.
+        let px = r.resampled.color.as_raw();
+        for (i, src) in r.resampled.source.iter().enumerate() {
+            if *src != TexelSource::Empty as u8 && *src != TexelSource::Gutter as u8 {
+                let c = &px[3 * i..3 * i + 3];
+                assert!(c.iter().all(|v| v.is_finite()) && c.iter().sum::<f32>() > 0.02);
+            }
+        }
+        // Bookkeeping: the best photograph is recorded wherever photographs coloured a texel.
+        for (src, best) in r.resampled.source.iter().zip(&r.resampled.best_photo) {
+            assert_eq!(
+                *src == TexelSource::Photos as u8,
+                *best != scantex::resample::NO_PHOTO
+            );
+        }
+    }
+    // Winner-take-all shows the +-25% exposure steps; multiband removes most of them.
+    assert!(ratios[0] > 3.0, "{ratios:?}");
+    assert!(ratios[2] < 0.25 * ratios[0], "{ratios:?}");
+    assert!(ratios[2] < ratios[1], "{ratios:?}");
+}
+
 /// Runs `scantex texture -q` with `args` from the repository root; returns whether it
 /// succeeded and its stderr.
 fn run_texture(args: &[&OsStr]) -> (bool, String) {
@@ -409,6 +454,11 @@ fn cli_texture_fails_cleanly_and_leaves_nothing() {
         vec!["--gains", "maybe"],
         vec!["--background", "1,2"],
         vec!["--format", "tiff"],
+        vec!["--merge", "blend"],
+        vec!["--merge-masks", "all"],
+        vec!["--levels", "40"],
+        vec!["--kernel-a", "0.9"],
+        vec!["--gains", "off", "--no-exposure-solve"],
     ] {
         let never = dir.path().join("never");
         let mut all: Vec<&OsStr> = vec![OsStr::new("-o"), never.as_os_str()];

@@ -1,0 +1,273 @@
+//! Seam visibility of a texture atlas: how much sharper the colour changes where the source
+//! photograph changes, or where two charts meet, than it does elsewhere. 1.0 means no visible
+//! seam.
+//!
+//! - View boundaries: adjacent texel pairs (right and down neighbours) inside a chart, at least
+//!   two texels from its border, both coloured from photographs. The ratio is the mean absolute
+//!   luma difference over pairs whose best-weighted photographs differ, divided by the mean
+//!   over pairs whose best photographs agree.
+//! - Chart borders: along every mesh edge where two charts meet (the same 3D edge with
+//!   different texture coordinates on its two faces), one sample per texel of edge length.
+//!   Each side is read (bilinear) half a texel inside its own face, so the two reads are one
+//!   texel apart on the surface; the control pair is the same side's reads at half and one and
+//!   a half texels inside. The ratio is the mean seam difference over the mean control
+//!   difference.
+
+use crate::mesh::Mesh;
+use crate::resample::{TexelSource, NO_PHOTO};
+use image::Rgb32FImage;
+use nalgebra::Vector2;
+use serde::Serialize;
+use std::collections::HashMap;
+
+/// Seam ratios of one atlas.
+#[derive(Debug, Clone, Copy, Serialize, PartialEq)]
+pub struct SeamReport {
+    /// Mean luma step across view boundaries over the mean step elsewhere (1 = invisible).
+    pub view_boundary_ratio: f64,
+    /// Texel pairs across view boundaries.
+    pub view_boundary_pairs: u64,
+    /// Mean luma step across chart borders over the mean step one texel inside (1 =
+    /// invisible).
+    pub chart_border_ratio: f64,
+    /// Samples along chart borders.
+    pub chart_border_samples: u64,
+}
+
+fn luma(c: [f32; 3]) -> f64 {
+    0.2126 * c[0] as f64 + 0.7152 * c[1] as f64 + 0.0722 * c[2] as f64
+}
+
+/// Bilinear luma at texel coordinates (x right, y down, centres at +0.5), clamped.
+fn bilinear(img: &Rgb32FImage, p: Vector2<f64>) -> f64 {
+    let (w, h) = img.dimensions();
+    let (x, y) = (p.x - 0.5, p.y - 0.5);
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    let cl = |v: f64, n: u32| (v.max(0.0) as u32).min(n - 1);
+    let g = |xx: f64, yy: f64| luma(img.get_pixel(cl(xx, w), cl(yy, h)).0);
+    let top = g(x0, y0) * (1.0 - fx) + g(x0 + 1.0, y0) * fx;
+    let bot = g(x0, y0 + 1.0) * (1.0 - fx) + g(x0 + 1.0, y0 + 1.0) * fx;
+    top * (1.0 - fy) + bot * fy
+}
+
+/// Both ratios for `atlas` (page 0 of `mesh`'s UVs), with each texel's [`TexelSource`] and
+/// best photograph as [`crate::resample::Resampled`] records them.
+pub fn seam_visibility(
+    mesh: &Mesh,
+    atlas: &Rgb32FImage,
+    source: &[u8],
+    best: &[u16],
+) -> SeamReport {
+    let (w, h) = atlas.dimensions();
+    let (w, h) = (w as usize, h as usize);
+    let chart = |s: u8| (1..=4).contains(&s);
+    // Distance-2 interior: texels whose 5x5 neighbourhood is all chart.
+    let interior = |x: usize, y: usize| -> bool {
+        if x < 2 || y < 2 || x + 2 >= w || y + 2 >= h {
+            return false;
+        }
+        (y - 2..=y + 2).all(|yy| (x - 2..=x + 2).all(|xx| chart(source[yy * w + xx])))
+    };
+    let photos = TexelSource::Photos as u8;
+    let (mut across, mut n_across, mut within, mut n_within) = (0f64, 0u64, 0f64, 0u64);
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            if source[i] != photos || best[i] == NO_PHOTO || !interior(x, y) {
+                continue;
+            }
+            for j in [i + 1, i + w] {
+                let (jx, jy) = (j % w, j / w);
+                if source[j] != photos || best[j] == NO_PHOTO || !interior(jx, jy) {
+                    continue;
+                }
+                let d = (luma(atlas.get_pixel(x as u32, y as u32).0)
+                    - luma(atlas.get_pixel(jx as u32, jy as u32).0))
+                .abs();
+                if best[i] != best[j] {
+                    across += d;
+                    n_across += 1;
+                } else {
+                    within += d;
+                    n_within += 1;
+                }
+            }
+        }
+    }
+    let view_boundary_ratio = if n_across > 0 && within > 0.0 {
+        (across / n_across as f64) / (within / n_within as f64)
+    } else {
+        1.0
+    };
+    let (seam, control, samples) = chart_borders(mesh, atlas);
+    SeamReport {
+        view_boundary_ratio,
+        view_boundary_pairs: n_across,
+        chart_border_ratio: if samples > 0 && control > 0.0 {
+            seam / control
+        } else {
+            1.0
+        },
+        chart_border_samples: samples,
+    }
+}
+
+/// Sums of the seam and control differences along chart borders, and the sample count.
+fn chart_borders(mesh: &Mesh, atlas: &Rgb32FImage) -> (f64, f64, u64) {
+    let Some(uv) = &mesh.uv else {
+        return (0.0, 0.0, 0);
+    };
+    let s = atlas.width() as f64;
+    let texel = |c: u32| {
+        let q = uv.coords[c as usize];
+        Vector2::new(q.x as f64 * s, (1.0 - q.y as f64) * s)
+    };
+    let on_page = |p: Vector2<f64>| p.x >= 0.0 && p.y >= 0.0 && p.x <= s && p.y <= s;
+    // Each undirected edge: its first face and corner indices.
+    let mut first: HashMap<(u32, u32), (usize, usize)> = HashMap::new();
+    let (mut seam, mut control, mut n) = (0f64, 0f64, 0u64);
+    for (f, fv) in mesh.faces.iter().enumerate() {
+        for k in 0..3 {
+            let (a, b) = (fv[k].0, fv[(k + 1) % 3].0);
+            let key = (a.min(b), a.max(b));
+            let Some(&(g, gk)) = first.get(&key) else {
+                first.insert(key, (f, k));
+                continue;
+            };
+            // Texture coordinates of a and b on both faces, and each face's third corner.
+            let side = |face: usize, corner: usize| {
+                let c = uv.faces[face];
+                let va = mesh.faces[face][corner].0;
+                let (ca, cb) = (c[corner], c[(corner + 1) % 3]);
+                let (pa, pb) = if va == a {
+                    (texel(ca), texel(cb))
+                } else {
+                    (texel(cb), texel(ca))
+                };
+                (pa, pb, texel(c[(corner + 2) % 3]), (ca, cb))
+            };
+            let (a1, b1, o1, i1) = side(f, k);
+            let (a2, b2, o2, i2) = side(g, gk);
+            let same = (i1.0 == i2.0 && i1.1 == i2.1) || (i1.0 == i2.1 && i1.1 == i2.0);
+            if same || ![a1, b1, o1, a2, b2, o2].into_iter().all(on_page) {
+                continue;
+            }
+            let len = (b1 - a1).norm().max((b2 - a2).norm());
+            let m = len.ceil().max(1.0) as usize;
+            // Unit step into each face, perpendicular to the edge.
+            let inward = |a: Vector2<f64>, b: Vector2<f64>, o: Vector2<f64>| {
+                let e = (b - a).try_normalize(1e-12)?;
+                let nrm = Vector2::new(-e.y, e.x);
+                Some(if nrm.dot(&(o - a)) >= 0.0 { nrm } else { -nrm })
+            };
+            let (Some(n1), Some(n2)) = (inward(a1, b1, o1), inward(a2, b2, o2)) else {
+                continue;
+            };
+            for j in 0..m {
+                let t = (j as f64 + 0.5) / m as f64;
+                let p1 = a1 + (b1 - a1) * t;
+                let p2 = a2 + (b2 - a2) * t;
+                let y1 = bilinear(atlas, p1 + n1 * 0.5);
+                let y2 = bilinear(atlas, p2 + n2 * 0.5);
+                if std::env::var_os("SCANTEX_SEAM_DEBUG").is_some() && (y1 - y2).abs() > 0.03 {
+                    eprintln!(
+                        "seam {:.1},{:.1} | {:.1},{:.1}: {y1:.3} {y2:.3}",
+                        p1.x, p1.y, p2.x, p2.y
+                    );
+                }
+                seam += (y1 - y2).abs();
+                control += 0.5
+                    * ((y1 - bilinear(atlas, p1 + n1 * 1.5)).abs()
+                        + (y2 - bilinear(atlas, p2 + n2 * 1.5)).abs());
+                n += 1;
+            }
+        }
+    }
+    if std::env::var_os("SCANTEX_SEAM_DEBUG").is_some() {
+        eprintln!(
+            "chart borders: mean seam {:.5}, mean control {:.5}, {n} samples",
+            seam / n.max(1) as f64,
+            control / n.max(1) as f64
+        );
+    }
+    (seam, control, n)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_step_between_photographs_shows_and_a_smooth_field_does_not() {
+        // 40x40 chart texels in a 48x48 atlas, a horizontal ramp plus noise-free texture;
+        // photo 0 on the left half, photo 1 on the right.
+        let n = 48;
+        let mut source = vec![0u8; n * n];
+        let mut best = vec![NO_PHOTO; n * n];
+        for y in 4..44 {
+            for x in 4..44 {
+                source[y * n + x] = TexelSource::Photos as u8;
+                best[y * n + x] = u16::from(x >= 24);
+            }
+        }
+        let tex = |step: f32| {
+            Rgb32FImage::from_fn(n as u32, n as u32, |x, y| {
+                let v = 0.3 + 0.01 * x as f32 + 0.02 * ((x + 2 * y) % 3) as f32;
+                let v = if x >= 24 { v + step } else { v };
+                image::Rgb([v, v, v])
+            })
+        };
+        let mesh = Mesh::default();
+        let smooth = seam_visibility(&mesh, &tex(0.0), &source, &best);
+        let stepped = seam_visibility(&mesh, &tex(0.2), &source, &best);
+        assert_eq!(smooth.view_boundary_pairs, 36);
+        assert!((smooth.view_boundary_ratio - 1.0).abs() < 0.3, "{smooth:?}");
+        assert!(stepped.view_boundary_ratio > 5.0, "{stepped:?}");
+    }
+
+    #[test]
+    fn chart_borders_show_a_step_and_not_a_continuous_colour() {
+        use crate::mesh::{UvMap, VertexId};
+        use nalgebra::{Point3, Vector2 as V2};
+        // A unit quad split along its diagonal 0-2 into two charts side by side in the atlas.
+        let mut mesh = Mesh::default();
+        for (x, y) in [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)] {
+            mesh.positions.push(Point3::new(x, y, 0.0));
+        }
+        mesh.faces = vec![
+            [VertexId(0), VertexId(1), VertexId(2)],
+            [VertexId(0), VertexId(2), VertexId(3)],
+        ];
+        let place = |x: f32, y: f32, ox: f32| V2::new(0.05 + ox + 0.4 * x, 0.05 + 0.4 * y);
+        let corners = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)];
+        let mut coords: Vec<V2<f32>> = corners.iter().map(|&(x, y)| place(x, y, 0.0)).collect();
+        coords.extend(corners.iter().map(|&(x, y)| place(x, y, 0.5)));
+        mesh.uv = Some(UvMap {
+            coords,
+            faces: vec![[0, 1, 2], [4, 6, 7]],
+        });
+        let n = 64u32;
+        // Colour as a function of the 3D point, each chart's rectangle filled from its own map.
+        let tex = |step: f32| {
+            Rgb32FImage::from_fn(n, n, |x, y| {
+                let u = (x as f32 + 0.5) / n as f32;
+                let v = 1.0 - (y as f32 + 0.5) / n as f32;
+                let (ox, add) = if u < 0.5 { (0.05, 0.0) } else { (0.55, step) };
+                let (px, py) = ((u - ox) / 0.4, (v - 0.05) / 0.4);
+                let c = 0.2 + 0.3 * px + 0.2 * py + add;
+                image::Rgb([c, c, c])
+            })
+        };
+        let none = vec![0u8; (n * n) as usize];
+        let best = vec![NO_PHOTO; (n * n) as usize];
+        let smooth = seam_visibility(&mesh, &tex(0.0), &none, &best);
+        let stepped = seam_visibility(&mesh, &tex(0.15), &none, &best);
+        assert!(smooth.chart_border_samples >= 25, "{smooth:?}");
+        assert!(
+            smooth.chart_border_ratio < 1.2,
+            "continuous colour: {smooth:?}"
+        );
+        assert!(stepped.chart_border_ratio > 5.0, "step: {stepped:?}");
+    }
+}
