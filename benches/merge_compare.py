@@ -21,19 +21,18 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DATA = os.path.join(ROOT, "..", "shared", "data")
 BIN = os.path.join(ROOT, "target", "release", "scantex")
 
+# Levels are explicit so that the rows mean the same whatever the default is.
 VARIANTS = [
     ("none", ["--merge", "none"]),
     ("average", ["--merge", "average"]),
-    ("multiband (default)", []),
-    ("multiband, paper masks", ["--merge-masks", "paper"]),
-    ("multiband, weighted masks", ["--merge-masks", "weighted"]),
-    ("multiband, best-view masks", ["--merge-masks", "best-view"]),
-    ("multiband, --levels 2", ["--levels", "2"]),
-    ("multiband, --levels 4", ["--levels", "4"]),
-    ("multiband, --levels 6", ["--levels", "6"]),
+    ("multiband, best-view masks, levels 2 (default)", []),
+    ("multiband, paper masks, levels 6", ["--merge-masks", "paper", "--levels", "6"]),
+    ("multiband, weighted masks, levels 6", ["--merge-masks", "weighted", "--levels", "6"]),
+    ("multiband, best-view masks, levels 6", ["--levels", "6"]),
+    ("multiband, best-view masks, levels 4", ["--levels", "4"]),
     ("none, --no-exposure-solve", ["--merge", "none", "--no-exposure-solve"]),
     ("average, --no-exposure-solve", ["--merge", "average", "--no-exposure-solve"]),
-    ("multiband, --no-exposure-solve", ["--no-exposure-solve"]),
+    ("multiband, levels 6, --no-exposure-solve", ["--levels", "6", "--no-exposure-solve"]),
 ]
 
 

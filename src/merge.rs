@@ -346,8 +346,8 @@ impl ChartAcc {
         }
     }
 
-    /// The blended chart image.
-    fn collapse(mut self, a: f32, winner_mode: bool) -> Plane {
+    /// The blended chart image; the band sums are freed, the per-texel bookkeeping stays.
+    fn collapse(&mut self, a: f32, winner_mode: bool) -> Plane {
         let top = self.num.len() - 1;
         for l in 0..=top {
             if l == 0 && winner_mode {
@@ -365,7 +365,8 @@ impl ChartAcc {
         // colours around rather than expand zeros into the chart's border.
         let weights: Vec<f32> = self.den[top].iter().map(|&d| f32::from(d > 1e-6)).collect();
         pyramid::fill_holes(&mut self.num[top], &weights, a);
-        pyramid::collapse(self.num, a)
+        self.den = Vec::new();
+        pyramid::collapse(std::mem::take(&mut self.num), a)
     }
 }
 
@@ -480,16 +481,7 @@ fn multiband(
                 let mut acc = acc.take().expect("each chart once");
                 let ci = (start + j) as u32;
                 add_complement(&prep, ch, ci, &face_chart, &mut acc, a, winner_mode);
-                let best_w = std::mem::take(&mut acc.best_w);
-                let bookkeeping = ChartAcc {
-                    num: Vec::new(),
-                    den: Vec::new(),
-                    best_w,
-                    best: std::mem::take(&mut acc.best),
-                    views: std::mem::take(&mut acc.views),
-                    avg: None,
-                };
-                (acc.collapse(a, winner_mode), bookkeeping)
+                (acc.collapse(a, winner_mode), acc)
             })
             .collect();
         for ((img, acc), (j, ch)) in done.into_iter().zip(charts[start..end].iter().enumerate()) {
@@ -517,8 +509,6 @@ fn multiband(
             }
         }
     }
-    // Chart texels off every chart's rectangle cannot exist; texels of faces that belong to
-    // no chart (off the page) are not owned either.
     let mut out = prep.finish(
         color,
         source,
