@@ -33,6 +33,7 @@ pub mod error;
 pub mod eval;
 pub mod info;
 pub mod io;
+pub mod level;
 pub mod merge;
 pub mod mesh;
 pub mod photometric;

@@ -143,6 +143,10 @@ enum Command {
         /// uses 0.375).
         #[arg(long, default_value_t = 0.4)]
         kernel_a: f32,
+        /// Multiband: leave chart borders as blended, without the smooth per-chart correction
+        /// that makes both sides of every border agree.
+        #[arg(long)]
+        no_seam_levelling: bool,
         /// Longest side of the per-photograph depth map, pixels.
         #[arg(long, default_value_t = 2048)]
         depth_resolution: u32,
@@ -212,6 +216,12 @@ enum Command {
         /// Random seed.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Largest per-photograph exposure and white-balance deviation (0.25 = +-25%).
+        #[arg(long, default_value_t = 0.25)]
+        gain_range: f64,
+        /// Light every photograph from the same direction (default: a random one each).
+        #[arg(long)]
+        fixed_light: bool,
     },
 }
 
@@ -384,6 +394,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             merge_masks,
             levels,
             kernel_a,
+            no_seam_levelling,
             depth_resolution,
             max_views,
             gutter_fill,
@@ -414,6 +425,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             });
             opts.merge.levels = levels;
             opts.merge.a = kernel_a;
+            opts.merge.level_seams = !no_seam_levelling;
             opts.bind.background = match background.as_str() {
                 "auto" => scantex::bind::Background::Estimate,
                 "off" => scantex::bind::Background::Off,
@@ -507,6 +519,8 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             up,
             photos,
             seed,
+            gain_range,
+            fixed_light,
         } => {
             let up = match up.as_str() {
                 "x" => nalgebra::Vector3::x(),
@@ -522,6 +536,8 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
                 up,
                 photos,
                 seed,
+                gain_range,
+                vary_light: !fixed_light,
                 ..Default::default()
             };
             let report = scantex::sample::generate_to(from_mesh.as_deref(), &opts, &out)?;

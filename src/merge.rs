@@ -16,6 +16,7 @@
 
 use crate::bind::{for_each_photo, Binding};
 use crate::error::{Error, Result};
+use crate::level;
 use crate::mesh::Mesh;
 use crate::progress::Progress;
 use crate::pyramid::{self, Plane};
@@ -100,6 +101,8 @@ pub struct MergeOptions {
     /// Centre weight of the 5-tap generating kernel. Default: 0.4 (the paper's; OpenCV's is
     /// 0.375).
     pub a: f32,
+    /// Level chart borders after blending ([`crate::level`]; multiband only). Default: true.
+    pub level_seams: bool,
 }
 
 impl Default for MergeOptions {
@@ -109,6 +112,7 @@ impl Default for MergeOptions {
             masks: Masks::BestView,
             levels: 2,
             a: 0.4,
+            level_seams: true,
         }
     }
 }
@@ -509,6 +513,14 @@ fn multiband(
             }
         }
     }
+    let t = std::time::Instant::now();
+    let levelling = mopts.level_seams.then(|| {
+        let owner = |i: usize| prep.owner(i);
+        let mut st =
+            level::level_seams(mesh, n, &owner, &face_chart, &mut color, level::SMOOTHNESS);
+        st.seconds = t.elapsed().as_secs_f64();
+        st
+    });
     let mut out = prep.finish(
         color,
         source,
@@ -518,6 +530,7 @@ fn multiband(
         (seconds_setup, seconds_charts),
     );
     out.stats.cpu_seconds_sampling = cpu_sampling.load(Ordering::Relaxed) as f64 * 1e-9;
+    out.stats.seam_levelling = levelling;
     Ok(out)
 }
 

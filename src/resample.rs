@@ -108,6 +108,8 @@ pub struct ResampleStats {
     pub seconds_texels: f64,
     /// Multiband merging: thread-seconds of that spent sampling texels (the rest is pyramids).
     pub cpu_seconds_sampling: f64,
+    /// Chart-border levelling after a multiband merge, if it ran.
+    pub seam_levelling: Option<crate::level::LevelStats>,
 }
 
 /// The resampled atlas.
@@ -840,6 +842,7 @@ impl<'a> Prepared<'a> {
             seconds_photo_setup: seconds.0,
             seconds_texels: seconds.1,
             cpu_seconds_sampling: 0.0,
+            seam_levelling: None,
         };
         Resampled {
             color: Rgb32FImage::from_raw(n as u32, n as u32, color).expect("sized n*n*3"),

@@ -33,6 +33,10 @@ pub struct SampleOptions {
     pub max_elevation: f64,
     /// Largest exposure and white-balance deviation, as a fraction. Default: 0.25 (+-25%).
     pub gain_range: f64,
+    /// Light each photograph from its own random direction (30-80 degrees up); false lights
+    /// all from one direction (55 degrees up), so photographs differ by gains only. Default:
+    /// true.
+    pub vary_light: bool,
     /// JPEG quality of the photographs. Default: 97.
     pub jpeg_quality: u8,
     /// Random seed: same seed, same bytes. Default: 1.
@@ -49,6 +53,7 @@ impl Default for SampleOptions {
             min_elevation: 20.0,
             max_elevation: 65.0,
             gain_range: 0.25,
+            vary_light: true,
             jpeg_quality: 97,
             seed: 1,
         }
@@ -211,6 +216,12 @@ pub fn generate(
     opts: &SampleOptions,
     out: &Path,
 ) -> Result<SampleReport> {
+    if !(0.0..=0.9).contains(&opts.gain_range) {
+        return Err(Error::Invalid(format!(
+            "gain range {} must lie in [0, 0.9]",
+            opts.gain_range
+        )));
+    }
     if truth.uv.is_none() {
         return Err(Error::Invalid(
             "the truth mesh needs texture coordinates".into(),
@@ -293,8 +304,13 @@ pub fn generate(
                 rng.range(1.0 - g, 1.0 + g) as f32,
             ],
             light_dir: {
-                let la = rng.range(0.0, std::f64::consts::TAU);
-                let le = rng.range(30.0f64, 80.0).to_radians();
+                let (mut la, mut le) = (
+                    rng.range(0.0, std::f64::consts::TAU),
+                    rng.range(30.0f64, 80.0).to_radians(),
+                );
+                if !opts.vary_light {
+                    (la, le) = (0.0, 55f64.to_radians());
+                }
                 ((e1 * la.cos() + e2 * la.sin()) * le.cos() + up * le.sin()).into()
             },
         };

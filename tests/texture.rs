@@ -306,6 +306,36 @@ fn multiband_hides_view_seams_that_winner_take_all_shows() {
     assert!(ratios[2] < ratios[1], "{ratios:?}");
 }
 
+/// Deep per-chart pyramids open seams where charts meet; seam levelling closes them.
+#[test]
+fn seam_levelling_closes_chart_borders_that_deep_pyramids_open() {
+    let scene = common::root().join("samples/torus");
+    let s = Scene::load(&SceneSpec {
+        dir: Some(scene.clone()),
+        ..Default::default()
+    })
+    .unwrap();
+    let (mesh, _) = s.mesh.as_ref().unwrap();
+    let mut ratios = Vec::new();
+    for level in [false, true] {
+        let mut opts = TextureOptions::default();
+        opts.atlas.pack.size = 1024;
+        opts.merge.levels = 6;
+        opts.merge.level_seams = level;
+        let r = texture(mesh, &s.photos, &opts, &Silent).unwrap();
+        let seams = r.report.seams;
+        assert!(seams.chart_border_samples > 1000, "{seams:?}");
+        ratios.push(seams.chart_border_ratio);
+        let st = r.resampled.stats.seam_levelling;
+        assert_eq!(st.is_some(), level);
+        if let Some(st) = st {
+            assert!(st.border_step_after < 0.5 * st.border_step_before, "{st:?}");
+        }
+    }
+    assert!(ratios[0] > 1.5, "{ratios:?}");
+    assert!(ratios[1] < 1.2, "{ratios:?}");
+}
+
 /// Runs `scantex texture -q` with `args` from the repository root; returns whether it
 /// succeeded and its stderr.
 fn run_texture(args: &[&OsStr]) -> (bool, String) {
