@@ -10,7 +10,7 @@
 //!   (divided by the mean over all pairs whose best photographs agree) is reported too, but
 //!   where view boundaries follow the content it measures the content, not a seam: on the
 //!   corset photographed with identical exposure and light it is 16 for winner-take-all and
-//!   3.0 for multiband, whose local ratios are 1.9 and 1.1 (docs/decisions.md).
+//!   3.1 for multiband, whose local ratios are 6.8 and 1.23 (docs/decisions.md).
 //! - Chart borders: along every mesh edge where two charts meet (the same 3D edge with
 //!   different texture coordinates on its two faces), one sample per texel of edge length.
 //!   Each side is read (bilinear) half a texel inside its own face, so the two reads are one

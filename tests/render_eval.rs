@@ -403,3 +403,20 @@ fn cli_render_and_eval_write_what_they_promise() {
     ]);
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("three numbers"));
 }
+
+/// `sample --gain-range` outside [0, 0.9] is refused with a message naming it, and writes
+/// nothing.
+#[test]
+fn sample_refuses_a_bad_gain_range() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("scene");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_scantex"))
+        .args(["sample", "--gain-range", "1.5", "-o"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("gain range 1.5"), "{err}");
+    assert!(!out.join("images").exists());
+}
