@@ -23,10 +23,10 @@
 //! preconditioner, matrix-free.
 
 use crate::mesh::Mesh;
+use crate::seams::border_samples;
 use nalgebra::Vector2;
 use rayon::prelude::*;
 use serde::Serialize;
-use std::collections::HashMap;
 
 /// Weight of the smoothness term per triangle edge, relative to one border sample. Chosen on
 /// the corset (docs/decisions.md): 0.1 reaches chart-border ratio 1.10; 1 gives 1.24 and 10
@@ -101,7 +101,6 @@ pub fn level_seams(
         let q = uv.coords[c as usize];
         Vector2::new(q.x as f64 * s, (1.0 - q.y as f64) * s)
     };
-    let on_page = |p: Vector2<f64>| p.x >= 0.0 && p.y >= 0.0 && p.x <= s && p.y <= s;
     // Bilinear colour at texel coordinates from the texels of `chart` only, so that gutter and
     // neighbouring charts never enter a read.
     let read = |p: Vector2<f64>, chart: u32| -> Option<V3> {
@@ -132,63 +131,23 @@ pub fn level_seams(
         (wsum > 1e-6).then(|| acc.map(|v| v / wsum))
     };
 
-    // Border samples.
-    let mut first: HashMap<(u32, u32), (usize, usize)> = HashMap::new();
-    let mut samples: Vec<Sample> = Vec::new();
-    for (f, fv) in mesh.faces.iter().enumerate() {
-        for k in 0..3 {
-            let (a, b) = (fv[k].0, fv[(k + 1) % 3].0);
-            let key = (a.min(b), a.max(b));
-            let Some(&(g, gk)) = first.get(&key) else {
-                first.insert(key, (f, k));
-                continue;
-            };
-            let (c1, c2) = (face_chart[f], face_chart[g]);
+    // Border samples, where both faces belong to charts on the page.
+    let mut samples: Vec<Sample> = border_samples(mesh, n)
+        .into_iter()
+        .filter_map(|b| {
+            let (c1, c2) = (face_chart[b.faces[0]], face_chart[b.faces[1]]);
             if c1 == u32::MAX || c2 == u32::MAX {
-                continue;
+                return None;
             }
-            // Texture coordinates of a then b on a face, and its third corner.
-            let side = |face: usize, corner: usize| {
-                let c = uv.faces[face];
-                let va = mesh.faces[face][corner].0;
-                let (ca, cb) = (c[corner], c[(corner + 1) % 3]);
-                let (ia, ib) = if va == a { (ca, cb) } else { (cb, ca) };
-                (ia, ib, c[(corner + 2) % 3])
-            };
-            let (ia1, ib1, o1) = side(f, k);
-            let (ia2, ib2, o2) = side(g, gk);
-            if ia1 == ia2 && ib1 == ib2 {
-                continue; // not a border: the same texture coordinates on both faces
-            }
-            let (a1, b1, a2, b2) = (texel(ia1), texel(ib1), texel(ia2), texel(ib2));
-            let (p1, p2) = (texel(o1), texel(o2));
-            if ![a1, b1, a2, b2, p1, p2].into_iter().all(on_page) {
-                continue;
-            }
-            let inward = |a: Vector2<f64>, b: Vector2<f64>, o: Vector2<f64>| {
-                let e = (b - a).try_normalize(1e-12)?;
-                let nrm = Vector2::new(-e.y, e.x);
-                Some(if nrm.dot(&(o - a)) >= 0.0 { nrm } else { -nrm })
-            };
-            let (Some(n1), Some(n2)) = (inward(a1, b1, p1), inward(a2, b2, p2)) else {
-                continue;
-            };
-            let m = ((b1 - a1).norm().max((b2 - a2).norm()).ceil() as usize).max(1);
-            for j in 0..m {
-                let t = (j as f64 + 0.5) / m as f64;
-                let q1 = a1 + (b1 - a1) * t + n1 * 0.5;
-                let q2 = a2 + (b2 - a2) * t + n2 * 0.5;
-                let (Some(x1), Some(x2)) = (read(q1, c1), read(q2, c2)) else {
-                    continue;
-                };
-                samples.push(Sample {
-                    u: [ia1, ib1, ia2, ib2],
-                    t,
-                    d: std::array::from_fn(|c| x1[c] - x2[c]),
-                });
-            }
-        }
-    }
+            let x1 = read(b.at[0] + b.inward[0] * 0.5, c1)?;
+            let x2 = read(b.at[1] + b.inward[1] * 0.5, c2)?;
+            Some(Sample {
+                u: [b.uv[0][0], b.uv[0][1], b.uv[1][0], b.uv[1][1]],
+                t: b.t,
+                d: std::array::from_fn(|c| x1[c] - x2[c]),
+            })
+        })
+        .collect();
     if samples.is_empty() {
         return LevelStats::default();
     }

@@ -144,20 +144,41 @@ pub fn seam_visibility(
     }
 }
 
-/// Sums of the seam and control differences along chart borders, and the sample count.
-fn chart_borders(mesh: &Mesh, atlas: &Rgb32FImage) -> (f64, f64, u64) {
+/// One sample along a chart border: the shared 3D edge `a`-`b` read on both of its faces.
+pub(crate) struct BorderSample {
+    /// The two faces.
+    pub faces: [usize; 2],
+    /// Per side, the texture-coordinate indices of `a` and `b`.
+    pub uv: [[u32; 2]; 2],
+    /// Position along the edge from `a` (0) to `b` (1).
+    pub t: f64,
+    /// Per side, the point on the edge (texel coordinates: x right, y down).
+    pub at: [Vector2<f64>; 2],
+    /// Per side, the unit step into its face, perpendicular to the edge.
+    pub inward: [Vector2<f64>; 2],
+}
+
+/// Samples along every mesh edge where two charts meet (the same 3D edge with different
+/// texture coordinates on its two faces, both on an `n`-texel page), one per texel of edge
+/// length.
+pub(crate) fn border_samples(mesh: &Mesh, n: usize) -> Vec<BorderSample> {
     let Some(uv) = &mesh.uv else {
-        return (0.0, 0.0, 0);
+        return Vec::new();
     };
-    let s = atlas.width() as f64;
+    let s = n as f64;
     let texel = |c: u32| {
         let q = uv.coords[c as usize];
         Vector2::new(q.x as f64 * s, (1.0 - q.y as f64) * s)
     };
     let on_page = |p: Vector2<f64>| p.x >= 0.0 && p.y >= 0.0 && p.x <= s && p.y <= s;
+    let inward = |a: Vector2<f64>, b: Vector2<f64>, o: Vector2<f64>| {
+        let e = (b - a).try_normalize(1e-12)?;
+        let nrm = Vector2::new(-e.y, e.x);
+        Some(if nrm.dot(&(o - a)) >= 0.0 { nrm } else { -nrm })
+    };
     // Each undirected edge: its first face and corner indices.
     let mut first: HashMap<(u32, u32), (usize, usize)> = HashMap::new();
-    let (mut seam, mut control, mut n) = (0f64, 0f64, 0u64);
+    let mut out = Vec::new();
     for (f, fv) in mesh.faces.iter().enumerate() {
         for k in 0..3 {
             let (a, b) = (fv[k].0, fv[(k + 1) % 3].0);
@@ -166,63 +187,61 @@ fn chart_borders(mesh: &Mesh, atlas: &Rgb32FImage) -> (f64, f64, u64) {
                 first.insert(key, (f, k));
                 continue;
             };
-            // Texture coordinates of a and b on both faces, and each face's third corner.
+            // Texture coordinates of a then b on a face, and its third corner.
             let side = |face: usize, corner: usize| {
                 let c = uv.faces[face];
-                let va = mesh.faces[face][corner].0;
                 let (ca, cb) = (c[corner], c[(corner + 1) % 3]);
-                let (pa, pb) = if va == a {
-                    (texel(ca), texel(cb))
+                let ab = if mesh.faces[face][corner].0 == a {
+                    [ca, cb]
                 } else {
-                    (texel(cb), texel(ca))
+                    [cb, ca]
                 };
-                (pa, pb, texel(c[(corner + 2) % 3]), (ca, cb))
+                (ab, c[(corner + 2) % 3])
             };
-            let (a1, b1, o1, i1) = side(f, k);
-            let (a2, b2, o2, i2) = side(g, gk);
-            let same = (i1.0 == i2.0 && i1.1 == i2.1) || (i1.0 == i2.1 && i1.1 == i2.0);
-            if same || ![a1, b1, o1, a2, b2, o2].into_iter().all(on_page) {
+            let (i1, o1) = side(f, k);
+            let (i2, o2) = side(g, gk);
+            if i1 == i2 {
+                continue; // not a border: the same texture coordinates on both faces
+            }
+            let (a1, b1, a2, b2) = (texel(i1[0]), texel(i1[1]), texel(i2[0]), texel(i2[1]));
+            let (p1, p2) = (texel(o1), texel(o2));
+            if ![a1, b1, p1, a2, b2, p2].into_iter().all(on_page) {
                 continue;
             }
-            let len = (b1 - a1).norm().max((b2 - a2).norm());
-            let m = len.ceil().max(1.0) as usize;
-            // Unit step into each face, perpendicular to the edge.
-            let inward = |a: Vector2<f64>, b: Vector2<f64>, o: Vector2<f64>| {
-                let e = (b - a).try_normalize(1e-12)?;
-                let nrm = Vector2::new(-e.y, e.x);
-                Some(if nrm.dot(&(o - a)) >= 0.0 { nrm } else { -nrm })
-            };
-            let (Some(n1), Some(n2)) = (inward(a1, b1, o1), inward(a2, b2, o2)) else {
+            let (Some(n1), Some(n2)) = (inward(a1, b1, p1), inward(a2, b2, p2)) else {
                 continue;
             };
+            let m = ((b1 - a1).norm().max((b2 - a2).norm()).ceil() as usize).max(1);
             for j in 0..m {
                 let t = (j as f64 + 0.5) / m as f64;
-                let p1 = a1 + (b1 - a1) * t;
-                let p2 = a2 + (b2 - a2) * t;
-                let y1 = bilinear(atlas, p1 + n1 * 0.5);
-                let y2 = bilinear(atlas, p2 + n2 * 0.5);
-                if std::env::var_os("SCANTEX_SEAM_DEBUG").is_some() && (y1 - y2).abs() > 0.03 {
-                    eprintln!(
-                        "seam {:.1},{:.1} | {:.1},{:.1}: {y1:.3} {y2:.3}",
-                        p1.x, p1.y, p2.x, p2.y
-                    );
-                }
-                seam += (y1 - y2).abs();
-                control += 0.5
-                    * ((y1 - bilinear(atlas, p1 + n1 * 1.5)).abs()
-                        + (y2 - bilinear(atlas, p2 + n2 * 1.5)).abs());
-                n += 1;
+                out.push(BorderSample {
+                    faces: [f, g],
+                    uv: [i1, i2],
+                    t,
+                    at: [a1 + (b1 - a1) * t, a2 + (b2 - a2) * t],
+                    inward: [n1, n2],
+                });
             }
         }
     }
-    if std::env::var_os("SCANTEX_SEAM_DEBUG").is_some() {
-        eprintln!(
-            "chart borders: mean seam {:.5}, mean control {:.5}, {n} samples",
-            seam / n.max(1) as f64,
-            control / n.max(1) as f64
-        );
+    out
+}
+
+/// Sums of the seam and control differences along chart borders, and the sample count.
+fn chart_borders(mesh: &Mesh, atlas: &Rgb32FImage) -> (f64, f64, u64) {
+    let (mut seam, mut control) = (0f64, 0f64);
+    let samples = border_samples(mesh, atlas.width() as usize);
+    for b in &samples {
+        let [p1, p2] = b.at;
+        let [n1, n2] = b.inward;
+        let y1 = bilinear(atlas, p1 + n1 * 0.5);
+        let y2 = bilinear(atlas, p2 + n2 * 0.5);
+        seam += (y1 - y2).abs();
+        control += 0.5
+            * ((y1 - bilinear(atlas, p1 + n1 * 1.5)).abs()
+                + (y2 - bilinear(atlas, p2 + n2 * 1.5)).abs());
     }
-    (seam, control, n)
+    (seam, control, samples.len() as u64)
 }
 
 #[cfg(test)]

@@ -141,6 +141,15 @@ fn red_on_green(model: &Path, truth: &Path, scene: &Path) -> (usize, usize) {
     (bad, total)
 }
 
+/// The bundled sample scene.
+fn torus() -> Scene {
+    Scene::load(&SceneSpec {
+        dir: Some(common::root().join("samples/torus")),
+        ..Default::default()
+    })
+    .unwrap()
+}
+
 fn texture_to(scene: &Path, opts: &TextureOptions, out: &Path) {
     let s = Scene::load(&SceneSpec {
         dir: Some(scene.into()),
@@ -191,12 +200,7 @@ fn no_texel_takes_colour_from_an_occluder() {
 /// coloured; the report adds up.
 #[test]
 fn sample_texture_is_complete_and_accounted_for() {
-    let scene = common::root().join("samples/torus");
-    let s = Scene::load(&SceneSpec {
-        dir: Some(scene.clone()),
-        ..Default::default()
-    })
-    .unwrap();
+    let s = torus();
     let (mesh, _) = s.mesh.as_ref().unwrap();
     let mut opts = TextureOptions::default();
     opts.atlas.pack.size = 1024;
@@ -267,12 +271,7 @@ fn default_beats_paper_on_held_out_views() {
 #[test]
 fn multiband_hides_view_seams_that_winner_take_all_shows() {
     use scantex::merge::Merge;
-    let scene = common::root().join("samples/torus");
-    let s = Scene::load(&SceneSpec {
-        dir: Some(scene.clone()),
-        ..Default::default()
-    })
-    .unwrap();
+    let s = torus();
     let (mesh, _) = s.mesh.as_ref().unwrap();
     let mut ratios = Vec::new();
     for merge in [Merge::None, Merge::Average, Merge::Multiband] {
@@ -309,12 +308,7 @@ fn multiband_hides_view_seams_that_winner_take_all_shows() {
 /// Deep per-chart pyramids open seams where charts meet; seam levelling closes them.
 #[test]
 fn seam_levelling_closes_chart_borders_that_deep_pyramids_open() {
-    let scene = common::root().join("samples/torus");
-    let s = Scene::load(&SceneSpec {
-        dir: Some(scene.clone()),
-        ..Default::default()
-    })
-    .unwrap();
+    let s = torus();
     let (mesh, _) = s.mesh.as_ref().unwrap();
     let mut ratios = Vec::new();
     for level in [false, true] {
@@ -405,11 +399,7 @@ fn cli_texture_writes_every_output_and_a_texture_that_renders() {
     let (m1, t1) = load_textured(&out.join("model.obj")).unwrap();
     let (m2, t2) = load_textured(&out.join("model.glb")).unwrap();
     assert_eq!(m1.num_faces(), m2.num_faces());
-    let s = Scene::load(&SceneSpec {
-        dir: Some(common::root().join("samples/torus")),
-        ..Default::default()
-    })
-    .unwrap();
+    let s = torus();
     let view = &s.photos[0].view;
     let a = render(
         &RayMesh::new(&m1),
