@@ -42,6 +42,7 @@ pub mod progress;
 pub mod pyramid;
 pub mod render;
 pub mod resample;
+pub mod restore;
 pub mod sample;
 pub mod scene;
 pub mod seams;

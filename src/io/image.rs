@@ -81,3 +81,109 @@ pub fn encode_exr(img: &Rgb32FImage) -> Result<EncodedTexture> {
         mime: "image/x-exr",
     })
 }
+
+/// How an image for `scantex inpaint` was stored, so that it is written back the same way.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Depth {
+    /// 8 bits per channel.
+    U8,
+    /// 16 bits per channel.
+    U16,
+    /// 32-bit float (EXR).
+    F32,
+}
+
+/// Reads an image as grey or RGB floats (alpha dropped; 8- and 16-bit values scaled to [0, 1],
+/// EXR as stored) and its depth.
+pub fn read_planar(path: &Path) -> Result<(crate::restore::Image, Depth)> {
+    use image::ColorType as C;
+    let img = read(path)?;
+    let depth = match img.color() {
+        C::L8 | C::La8 | C::Rgb8 | C::Rgba8 => Depth::U8,
+        C::L16 | C::La16 | C::Rgb16 | C::Rgba16 => Depth::U16,
+        _ => Depth::F32,
+    };
+    let grey = matches!(img.color(), C::L8 | C::La8 | C::L16 | C::La16);
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let (channels, data) = if grey {
+        (1, img.to_luma32f().into_raw())
+    } else {
+        (3, img.into_rgb32f().into_raw())
+    };
+    Ok((
+        crate::restore::Image {
+            width: w,
+            height: h,
+            channels,
+            data,
+        },
+        depth,
+    ))
+}
+
+/// Reads a mask: white (above one half of full scale, any channel's mean) = true.
+pub fn read_mask(path: &Path) -> Result<(Vec<bool>, usize, usize)> {
+    let img = read(path)?.to_luma32f();
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    Ok((img.into_raw().into_iter().map(|v| v > 0.5).collect(), w, h))
+}
+
+/// Writes an image in the format its extension names (png, jpg/jpeg, exr), 16-bit PNG when
+/// `depth` is 16-bit, atomically.
+pub fn write_planar(path: &Path, img: &crate::restore::Image, depth: Depth) -> Result<()> {
+    use image::{ImageBuffer, Luma, Rgb};
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(|e| e.to_ascii_lowercase())
+        .unwrap_or_default();
+    let (w, h) = (img.width as u32, img.height as u32);
+    let q8 = |v: &f32| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
+    let q16 = |v: &f32| (v.clamp(0.0, 1.0) * 65535.0).round() as u16;
+    let dynimg = match (ext.as_str(), img.channels, depth) {
+        ("exr", 1, _) | ("exr", 3, _) => {
+            // EXR carries RGB; grey becomes three equal channels.
+            let rgb: Vec<f32> = if img.channels == 1 {
+                img.data.iter().flat_map(|&v| [v, v, v]).collect()
+            } else {
+                img.data.clone()
+            };
+            DynamicImage::ImageRgb32F(
+                ImageBuffer::<Rgb<f32>, _>::from_raw(w, h, rgb).expect("sized"),
+            )
+        }
+        ("png", 1, Depth::U16 | Depth::F32) => DynamicImage::ImageLuma16(
+            ImageBuffer::<Luma<u16>, _>::from_raw(w, h, img.data.iter().map(q16).collect())
+                .expect("sized"),
+        ),
+        ("png", 3, Depth::U16 | Depth::F32) => DynamicImage::ImageRgb16(
+            ImageBuffer::<Rgb<u16>, _>::from_raw(w, h, img.data.iter().map(q16).collect())
+                .expect("sized"),
+        ),
+        ("png" | "jpg" | "jpeg", 1, _) => DynamicImage::ImageLuma8(
+            ImageBuffer::<Luma<u8>, _>::from_raw(w, h, img.data.iter().map(q8).collect())
+                .expect("sized"),
+        ),
+        ("png" | "jpg" | "jpeg", 3, _) => DynamicImage::ImageRgb8(
+            ImageBuffer::<Rgb<u8>, _>::from_raw(w, h, img.data.iter().map(q8).collect())
+                .expect("sized"),
+        ),
+        _ => {
+            return Err(Error::parse(
+                path,
+                Location::File,
+                "output format must be .png, .jpg, .jpeg or .exr",
+            ))
+        }
+    };
+    let format = match ext.as_str() {
+        "exr" => image::ImageFormat::OpenExr,
+        "png" => image::ImageFormat::Png,
+        _ => image::ImageFormat::Jpeg,
+    };
+    let mut bytes = Vec::new();
+    dynimg
+        .write_to(&mut std::io::Cursor::new(&mut bytes), format)
+        .map_err(|e| Error::parse(path, Location::File, format!("cannot encode: {e}")))?;
+    super::write_atomic(path, &bytes)
+}

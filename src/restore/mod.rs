@@ -1,0 +1,490 @@
+//! Stage 5: restoration of texels no photograph saw (§5 of the paper). The image is split by
+//! frequency with a DCT ([`dct`]); the low band is inpainted by diffusion ([`diffuse`]) and the
+//! high band is synthesised from the rest of the image, coarse to fine ([`synth`]); the two are
+//! summed. Works on any 2D image ([`inpaint`], `scantex inpaint`) and on the atlas after
+//! merging ([`restore_atlas`]), where it reads chart texels only.
+
+mod dct;
+mod diffuse;
+mod synth;
+
+pub use synth::LevelStats;
+
+use crate::error::{Error, Result};
+use serde::Serialize;
+use std::time::Instant;
+
+/// An image of `channels` interleaved float channels (1 = grey, 3 = RGB), row-major.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Image {
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// 1 or 3.
+    pub channels: usize,
+    /// `width * height * channels` values, nominally in [0, 1].
+    pub data: Vec<f32>,
+}
+
+/// How the high band's nearest neighbours are found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// As the paper: exact kd-tree search on the full 5x5-causal + 3x3 + 1x1 neighbourhood
+    /// vectors (36 to 70 numbers for colour), over every known texel of the window.
+    Paper,
+    /// PCA of the neighbourhood vectors keeping 95% of the variance (at most 16 numbers), a
+    /// kd-tree on the reduced vectors, exact re-ranking of the nearest few, over at most
+    /// [`RestoreOptions::max_sources`] source texels per kernel orientation.
+    #[default]
+    Fast,
+}
+
+/// How many DCT subbands form the low band.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Kappa {
+    /// The smallest kappa whose high band's autocorrelation has an element standard
+    /// deviation below [`RestoreOptions::kappa_threshold`] (the paper's rule).
+    #[default]
+    Auto,
+    /// This many subbands: 0 is pure synthesis, the image's longer side or more is pure
+    /// diffusion inpainting.
+    Fixed(usize),
+}
+
+impl std::str::FromStr for Method {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "paper" => Ok(Method::Paper),
+            "fast" => Ok(Method::Fast),
+            _ => Err(format!("unknown method '{s}' (expected paper or fast)")),
+        }
+    }
+}
+
+impl std::str::FromStr for Kappa {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        if s == "auto" {
+            return Ok(Kappa::Auto);
+        }
+        s.parse::<usize>()
+            .map(Kappa::Fixed)
+            .map_err(|_| format!("kappa must be auto or a whole number of subbands, not '{s}'"))
+    }
+}
+
+/// Options of the restoration stage and of `scantex inpaint`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct RestoreOptions {
+    /// Neighbour search. Default: [`Method::Fast`].
+    pub method: Method,
+    /// Low-band size. Default: [`Kappa::Auto`].
+    pub kappa: Kappa,
+    /// Threshold of the automatic kappa, on the element standard deviation of the per-pixel
+    /// autocorrelation of intensities in [0, 1]. Default: 0.001 (the paper's).
+    pub kappa_threshold: f64,
+    /// Levels of the high-band pyramid (n + 1 in the paper), 1 to 8. Default: 3 (the paper
+    /// found three or four best).
+    pub levels: usize,
+    /// Hertzmann's coherence parameter: a coherent candidate wins if its squared distance is
+    /// within (1 + coherence * 2^-level) of the search's. Default: 10.
+    pub coherence: f32,
+    /// Seeds the choice of source texels when a window has more than `max_sources`.
+    /// Default: 0.
+    pub seed: u64,
+    /// Fast method: source texels per kernel orientation and window, drawn at random with
+    /// `seed`. Default: 16384.
+    pub max_sources: usize,
+    /// Margin of known texels around a hole that may serve as its source, in texels of the
+    /// full-resolution level (halved per level, at least 8). Default: 64.
+    pub margin: usize,
+    /// Diffusion sweeps per level of the low band's coarse-to-fine cascade. Default: 40.
+    pub sweeps: usize,
+}
+
+impl Default for RestoreOptions {
+    fn default() -> Self {
+        RestoreOptions {
+            method: Method::Fast,
+            kappa: Kappa::Auto,
+            kappa_threshold: 0.001,
+            levels: 3,
+            coherence: 10.0,
+            seed: 0,
+            max_sources: 16384,
+            margin: 64,
+            sweeps: 40,
+        }
+    }
+}
+
+impl RestoreOptions {
+    /// Checks ranges.
+    pub fn validate(&self) -> Result<()> {
+        if !(1..=8).contains(&self.levels) {
+            return Err(Error::Invalid(format!(
+                "restoration levels must be 1 to 8, not {}",
+                self.levels
+            )));
+        }
+        if !(self.coherence.is_finite() && self.coherence >= 0.0) {
+            return Err(Error::Invalid(format!(
+                "the coherence parameter must be a finite number >= 0, not {}",
+                self.coherence
+            )));
+        }
+        if !(self.kappa_threshold.is_finite() && self.kappa_threshold > 0.0) {
+            return Err(Error::Invalid(format!(
+                "the kappa threshold must be > 0, not {}",
+                self.kappa_threshold
+            )));
+        }
+        if self.method == Method::Fast && self.max_sources == 0 {
+            return Err(Error::Invalid(
+                "the fast method needs at least one source texel per tree".into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// What restoration did.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct RestoreReport {
+    /// Texels filled.
+    pub texels: u64,
+    /// Subbands in the low band.
+    pub kappa: usize,
+    /// Whether kappa was chosen automatically.
+    pub kappa_auto: bool,
+    /// The automatic rule's curve: element standard deviation of the autocorrelation of the
+    /// high band for kappa = 0, 1, ... (empty for a fixed kappa).
+    pub autocorrelation_std: Vec<f64>,
+    /// Neighbour search.
+    pub method: Method,
+    /// Per pyramid level, coarsest first.
+    pub levels: Vec<LevelStats>,
+    /// Seconds: frequency split (with kappa), low-band diffusion, high-band synthesis.
+    pub seconds_split: f64,
+    /// See `seconds_split`.
+    pub seconds_diffusion: f64,
+    /// See `seconds_split`.
+    pub seconds_synthesis: f64,
+    /// Wall-clock seconds in all.
+    pub seconds: f64,
+}
+
+/// Longest side on which kappa is chosen: kappa counts cycles across the image, so a
+/// box-downsampled copy gives the same count at a fraction of the cost.
+const KAPPA_ANALYSIS_SIDE: usize = 512;
+/// Largest kappa the automatic rule tries.
+const KAPPA_MAX_AUTO: usize = 64;
+
+/// Fills the texels of `mask` (true = fill) of `image`. With a `domain`, texels outside it
+/// are neither read nor written (an atlas's gutter); the mask is clipped to the domain.
+pub fn inpaint(
+    image: &Image,
+    mask: &[bool],
+    domain: Option<&[bool]>,
+    opts: &RestoreOptions,
+) -> Result<(Image, RestoreReport)> {
+    opts.validate()?;
+    let (w, h, ch) = (image.width, image.height, image.channels);
+    if !(ch == 1 || ch == 3) || image.data.len() != w * h * ch || w == 0 || h == 0 {
+        return Err(Error::Invalid(format!(
+            "inpaint: a {w}x{h} image with {ch} channels and {} values is not a grey or RGB image",
+            image.data.len()
+        )));
+    }
+    if mask.len() != w * h || domain.is_some_and(|d| d.len() != w * h) {
+        return Err(Error::Invalid(format!(
+            "inpaint: the mask must have one value per pixel of the {w}x{h} image"
+        )));
+    }
+    let full;
+    let domain = match domain {
+        Some(d) => d,
+        None => {
+            full = vec![true; w * h];
+            &full
+        }
+    };
+    let fill: Vec<bool> = mask.iter().zip(domain).map(|(&m, &d)| m && d).collect();
+    let texels = fill.iter().filter(|&&f| f).count() as u64;
+    let dims = ch * (12 + 9 + opts.levels.saturating_sub(2));
+    if dims > synth::MAX_DIMS {
+        return Err(Error::Invalid(format!(
+            "inpaint: {} levels make {dims}-number neighbourhoods; at most {} are supported",
+            opts.levels,
+            synth::MAX_DIMS
+        )));
+    }
+    let wall = Instant::now();
+    let mut report = RestoreReport {
+        texels,
+        method: opts.method,
+        ..Default::default()
+    };
+    if texels == 0 || !domain.iter().zip(&fill).any(|(&d, &f)| d && !f) {
+        // Nothing to fill, or nothing known to fill from: the image as it is.
+        report.seconds = wall.elapsed().as_secs_f64();
+        return Ok((image.clone(), report));
+    }
+
+    // The hole's current content must not reach the low band (it may be the truth, or the
+    // vertex colours): fill it smoothly first, so the DCT sees only what is known.
+    let mut t = Instant::now();
+    let mut pre = image.data.clone();
+    diffuse::inpaint(&mut pre, w, h, ch, &fill, domain, opts.sweeps);
+    let kappa = match opts.kappa {
+        Kappa::Fixed(k) => k.min(w.max(h)),
+        Kappa::Auto => {
+            let (y, sw, sh) = luminance_small(&pre, w, h, ch);
+            let (k, curve) = dct::auto_kappa(
+                &y,
+                sw,
+                sh,
+                opts.kappa_threshold,
+                KAPPA_MAX_AUTO.min(sw.max(sh)),
+            );
+            report.kappa_auto = true;
+            report.autocorrelation_std = curve;
+            k
+        }
+    };
+    report.kappa = kappa;
+    let mut low = vec![0f32; w * h * ch];
+    let mut high = vec![0f32; w * h * ch];
+    for c in 0..ch {
+        let plane: Vec<f32> = (0..w * h).map(|i| pre[i * ch + c]).collect();
+        let (l, hb) = dct::split(&plane, w, h, kappa);
+        for i in 0..w * h {
+            low[i * ch + c] = l[i];
+            high[i * ch + c] = hb[i];
+        }
+    }
+    drop(pre);
+    report.seconds_split = lap(&mut t);
+
+    diffuse::inpaint(&mut low, w, h, ch, &fill, domain, opts.sweeps);
+    report.seconds_diffusion = lap(&mut t);
+
+    let mut levels = synth::pyramid(high, w, h, ch, &fill, domain, opts.levels);
+    let params = synth::Params {
+        exact: opts.method == Method::Paper,
+        coherence: opts.coherence,
+        seed: opts.seed,
+        max_sources: if opts.method == Method::Paper {
+            0
+        } else {
+            opts.max_sources
+        },
+        margin: opts.margin,
+        rerank: 8,
+    };
+    report.levels = synth::synthesize(&mut levels, ch, &params);
+    report.seconds_synthesis = lap(&mut t);
+
+    let mut out = image.clone();
+    let h0 = &levels[0].data;
+    for i in 0..w * h {
+        if fill[i] {
+            for c in 0..ch {
+                out.data[i * ch + c] = low[i * ch + c] + h0[i * ch + c];
+            }
+        }
+    }
+    report.seconds = wall.elapsed().as_secs_f64();
+    Ok((out, report))
+}
+
+fn lap(t: &mut Instant) -> f64 {
+    let s = t.elapsed().as_secs_f64();
+    *t = Instant::now();
+    s
+}
+
+/// CIE Y (Rec. 709 primaries, on the stored values) box-downsampled so that the longer side
+/// is at most [`KAPPA_ANALYSIS_SIDE`].
+fn luminance_small(data: &[f32], w: usize, h: usize, ch: usize) -> (Vec<f64>, usize, usize) {
+    let f = w.max(h).div_ceil(KAPPA_ANALYSIS_SIDE).max(1);
+    let (sw, sh) = (w.div_ceil(f), h.div_ceil(f));
+    let mut y = vec![0f64; sw * sh];
+    let mut n = vec![0f64; sw * sh];
+    for yy in 0..h {
+        for xx in 0..w {
+            let i = yy * w + xx;
+            let v = if ch == 3 {
+                0.2126 * data[i * 3] as f64
+                    + 0.7152 * data[i * 3 + 1] as f64
+                    + 0.0722 * data[i * 3 + 2] as f64
+            } else {
+                data[i] as f64
+            };
+            let j = (yy / f) * sw + xx / f;
+            y[j] += v;
+            n[j] += 1.0;
+        }
+    }
+    for (a, b) in y.iter_mut().zip(&n) {
+        *a /= b.max(1.0);
+    }
+    (y, sw, sh)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn texture(w: usize, h: usize, ramp: bool) -> Image {
+        // Blurred white noise: a homogeneous, non-periodic texture.
+        let mut s = 99u64;
+        let noise: Vec<f32> = (0..w * h)
+            .map(|_| {
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (s >> 40) as f32 / (1u64 << 24) as f32 - 0.5
+            })
+            .collect();
+        let data = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                let mut a = 0.0;
+                for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                    a += noise[((y + dy) % h) * w + (x + dx) % w];
+                }
+                let t = 0.5 + 0.2 * a;
+                if ramp {
+                    t * (0.2 + 0.8 * x as f32 / w as f32)
+                } else {
+                    t
+                }
+            })
+            .collect();
+        Image {
+            width: w,
+            height: h,
+            channels: 1,
+            data,
+        }
+    }
+
+    fn disc(w: usize, h: usize, r: f32) -> Vec<bool> {
+        (0..w * h)
+            .map(|i| {
+                let (x, y) = (
+                    (i % w) as f32 - w as f32 / 2.0,
+                    (i / w) as f32 - h as f32 / 2.0,
+                );
+                x * x + y * y < r * r
+            })
+            .collect()
+    }
+
+    #[test]
+    fn kappa_zero_is_pure_synthesis_and_kappa_max_pure_inpainting() {
+        let img = texture(64, 48, true);
+        let mask = disc(64, 48, 9.0);
+        let mut o = RestoreOptions {
+            kappa: Kappa::Fixed(0),
+            ..Default::default()
+        };
+        let (syn, r) = inpaint(&img, &mask, None, &o).unwrap();
+        assert_eq!(r.kappa, 0);
+        // Every filled value is a copy of a known pixel: nothing came from diffusion.
+        let known: Vec<u32> = (0..64 * 48)
+            .filter(|&i| !mask[i])
+            .map(|i| img.data[i].to_bits())
+            .collect();
+        for i in (0..64 * 48).filter(|&i| mask[i]) {
+            let v = syn.data[i];
+            assert!(
+                known.iter().any(|&k| (f32::from_bits(k) - v).abs() < 1e-6),
+                "texel {i}: {v} is not a known value"
+            );
+        }
+        // kappa = longer side: all low band, the result is the diffusion fill exactly.
+        o.kappa = Kappa::Fixed(64);
+        let (inp, _) = inpaint(&img, &mask, None, &o).unwrap();
+        let mut diff = img.data.clone();
+        diffuse::inpaint(&mut diff, 64, 48, 1, &mask, &vec![true; 64 * 48], o.sweeps);
+        let (_, _) = (&inp, &diff);
+        for i in (0..64 * 48).filter(|&i| mask[i]) {
+            assert!(
+                (inp.data[i] - diff[i]).abs() < 1e-4,
+                "texel {i}: {} vs {}",
+                inp.data[i],
+                diff[i]
+            );
+        }
+        // Known pixels never change.
+        for i in (0..64 * 48).filter(|&i| !mask[i]) {
+            assert_eq!(syn.data[i], img.data[i]);
+            assert_eq!(inp.data[i], img.data[i]);
+        }
+    }
+
+    #[test]
+    fn automatic_kappa_lies_between_and_grows_with_a_ramp() {
+        let o = RestoreOptions::default();
+        let mask = disc(96, 96, 12.0);
+        let (_, flat) = inpaint(&texture(96, 96, false), &mask, None, &o).unwrap();
+        let (_, ramp) = inpaint(&texture(96, 96, true), &mask, None, &o).unwrap();
+        assert!(
+            ramp.kappa > flat.kappa,
+            "flat {} ramp {}",
+            flat.kappa,
+            ramp.kappa
+        );
+        assert!(
+            ramp.kappa > 0 && ramp.kappa < 96,
+            "ramp kappa {}",
+            ramp.kappa
+        );
+    }
+
+    #[test]
+    fn same_seed_same_bytes_and_detail_in_the_hole() {
+        let img = texture(80, 60, false);
+        let mask = disc(80, 60, 10.0);
+        let o = RestoreOptions::default();
+        let (a, _) = inpaint(&img, &mask, None, &o).unwrap();
+        let (b, _) = inpaint(&img, &mask, None, &o).unwrap();
+        assert_eq!(a, b);
+        // The hole is not smooth: its high-pass energy is comparable to the surroundings'.
+        let hp = |im: &Image, i: usize| {
+            let (x, y) = (i % 80, i / 80);
+            im.data[i]
+                - 0.25
+                    * (im.data[y * 80 + x - 1]
+                        + im.data[y * 80 + x + 1]
+                        + im.data[(y - 1) * 80 + x]
+                        + im.data[(y + 1) * 80 + x])
+        };
+        let inside: Vec<usize> = (0..80 * 60).filter(|&i| disc(80, 60, 8.0)[i]).collect();
+        let outside: Vec<usize> = (0..80 * 60)
+            .filter(|&i| !mask[i] && i % 80 > 0 && i % 80 < 79 && i / 80 > 0 && i / 80 < 59)
+            .collect();
+        let e = |im: &Image, s: &[usize]| {
+            (s.iter().map(|&i| hp(im, i).powi(2)).sum::<f32>() / s.len() as f32).sqrt()
+        };
+        let ratio = e(&a, &inside) / e(&img, &outside);
+        assert!(ratio > 0.6 && ratio < 1.5, "detail ratio {ratio}");
+    }
+
+    #[test]
+    fn bad_options_and_sizes_are_errors() {
+        let img = texture(16, 16, false);
+        let o = RestoreOptions {
+            levels: 0,
+            ..Default::default()
+        };
+        assert!(inpaint(&img, &[false; 256], None, &o).is_err());
+        assert!(inpaint(&img, &[false; 10], None, &RestoreOptions::default()).is_err());
+    }
+}

@@ -1,0 +1,976 @@
+//! Multiresolution synthesis of the high band (§5.3-5.4): a Gaussian pyramid of the band and
+//! of the mask, then, coarsest level first, non-parametric sampling of every masked texel
+//! (Wei and Levoy 2000) with the neighbourhood vector of a 5x5 causal kernel at the level, a
+//! 3x3 kernel one level up and 1x1 above; shrinking fill order by Manhattan distance; eight
+//! orientations of the causal kernel, each with its own kd-tree (kiddo); coherence candidates
+//! (Ashikhmin 2001) against the tree's match with Hertzmann et al.'s switch.
+//!
+//! Holes are independent when their kernels cannot touch (components of the mask at
+//! Chebyshev distance 2), so they run in parallel. The source of a hole is the known texels in
+//! a window around it (windows that overlap are merged into one cluster with one set of
+//! trees), which keeps synthesis local on a large atlas and makes it global on a small image.
+
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use rayon::prelude::*;
+use serde::Serialize;
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+use std::num::NonZero;
+use std::time::Instant;
+
+/// One level of the high-band pyramid.
+#[derive(Debug, Clone)]
+pub(crate) struct Level {
+    pub w: usize,
+    pub h: usize,
+    /// Interleaved channels.
+    pub data: Vec<f32>,
+    /// Texels that exist (chart texels of an atlas; everything in a plain image).
+    pub domain: Vec<bool>,
+    /// Texels to synthesise (a subset of the domain).
+    pub mask: Vec<bool>,
+}
+
+impl Level {
+    fn known(&self, i: usize) -> bool {
+        self.domain[i] && !self.mask[i]
+    }
+}
+
+const W5: [f32; 5] = [0.05, 0.25, 0.4, 0.25, 0.05];
+
+/// Gaussian pyramid (5x5, a = 0.4) of the band and of the mask, `levels` levels in all.
+/// Reduction is normalised over the domain, so gutter never enters a chart's values; a
+/// coarse texel is in the domain if any texel of its 2x2 block is, and masked if any masked
+/// texel falls under its kernel (the paper's "any value above 0").
+pub(crate) fn pyramid(
+    band: Vec<f32>,
+    w: usize,
+    h: usize,
+    ch: usize,
+    mask: &[bool],
+    domain: &[bool],
+    levels: usize,
+) -> Vec<Level> {
+    let mut out = vec![Level {
+        w,
+        h,
+        data: band,
+        domain: domain.to_vec(),
+        mask: mask.iter().zip(domain).map(|(&m, &d)| m && d).collect(),
+    }];
+    while out.len() < levels {
+        let l = out.last().expect("level 0 exists");
+        let (w2, h2) = (l.w.div_ceil(2), l.h.div_ceil(2));
+        let rows: Vec<(Vec<f32>, Vec<bool>, Vec<bool>)> = (0..h2)
+            .into_par_iter()
+            .map(|y2| {
+                let mut d = vec![0f32; w2 * ch];
+                let mut dom = vec![false; w2];
+                let mut m = vec![false; w2];
+                for x2 in 0..w2 {
+                    for y in 2 * y2..(2 * y2 + 2).min(l.h) {
+                        for x in 2 * x2..(2 * x2 + 2).min(l.w) {
+                            dom[x2] |= l.domain[y * l.w + x];
+                        }
+                    }
+                    if !dom[x2] {
+                        continue;
+                    }
+                    let mut acc = [0f32; 4];
+                    let (mut ws, mut ms) = (0f32, 0f32);
+                    for (v, wv) in W5.iter().enumerate() {
+                        let y = 2 * y2 as i64 + v as i64 - 2;
+                        if y < 0 || y >= l.h as i64 {
+                            continue;
+                        }
+                        for (u, wu) in W5.iter().enumerate() {
+                            let x = 2 * x2 as i64 + u as i64 - 2;
+                            if x < 0 || x >= l.w as i64 {
+                                continue;
+                            }
+                            let i = y as usize * l.w + x as usize;
+                            if !l.domain[i] {
+                                continue;
+                            }
+                            let k = wu * wv;
+                            for c in 0..ch {
+                                acc[c] += k * l.data[i * ch + c];
+                            }
+                            ws += k;
+                            if l.mask[i] {
+                                ms += k;
+                            }
+                        }
+                    }
+                    for c in 0..ch {
+                        d[x2 * ch + c] = acc[c] / ws;
+                    }
+                    m[x2] = ms > 0.0;
+                }
+                (d, dom, m)
+            })
+            .collect();
+        let mut lv = Level {
+            w: w2,
+            h: h2,
+            data: Vec::with_capacity(w2 * h2 * ch),
+            domain: Vec::with_capacity(w2 * h2),
+            mask: Vec::with_capacity(w2 * h2),
+        };
+        for (d, dom, m) in rows {
+            lv.data.extend(d);
+            lv.domain.extend(dom);
+            lv.mask.extend(m);
+        }
+        out.push(lv);
+    }
+    out
+}
+
+/// The causal half of a 5x5 kernel in scanline order: two rows above, two texels to the left.
+const CAUSAL: [(i32, i32); 12] = [
+    (-2, -2),
+    (-1, -2),
+    (0, -2),
+    (1, -2),
+    (2, -2),
+    (-2, -1),
+    (-1, -1),
+    (0, -1),
+    (1, -1),
+    (2, -1),
+    (-2, 0),
+    (-1, 0),
+];
+
+/// Offset `d` of the causal kernel in orientation `o` (0..8: the symmetries of the square).
+fn orient(o: usize, d: (i32, i32)) -> (i32, i32) {
+    let (a, b) = if o & 4 != 0 { (d.1, d.0) } else { d };
+    (
+        if o & 1 != 0 { -a } else { a },
+        if o & 2 != 0 { -b } else { b },
+    )
+}
+
+/// How nearest neighbours are found.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Params {
+    /// Exact kd-tree search on the full neighbourhood vectors (the paper); otherwise PCA
+    /// (95% of the variance, at most 16 components) with exact re-ranking of `rerank`.
+    pub exact: bool,
+    /// Hertzmann's coherence parameter.
+    pub coherence: f32,
+    /// Seeds the choice of source texels when a window holds more than `max_sources`.
+    pub seed: u64,
+    /// Source texels per orientation and window (0 = all).
+    pub max_sources: usize,
+    /// Window margin around a hole, in texels of level 0.
+    pub margin: usize,
+    /// Candidates re-ranked on full vectors (fast search).
+    pub rerank: usize,
+}
+
+/// What synthesis did at one level.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct LevelStats {
+    /// Level (0 = full resolution).
+    pub level: usize,
+    /// Size of the level.
+    pub width: usize,
+    /// Size of the level.
+    pub height: usize,
+    /// Texels synthesised.
+    pub texels: u64,
+    /// Of those, taken from a coherence candidate.
+    pub coherent: u64,
+    /// Texels no kernel orientation ever fitted (left at zero detail: low band only).
+    pub stalled: u64,
+    /// Source windows (sets of trees).
+    pub windows: usize,
+    /// Source texels in all trees.
+    pub sources: u64,
+    /// Length of the neighbourhood vector.
+    pub dims: usize,
+    /// Mean length of the reduced vector (fast search; equal to `dims` for exact search).
+    pub reduced_dims: f64,
+    /// Wall-clock seconds.
+    pub seconds: f64,
+}
+
+/// Synthesises the masked texels of every level, coarsest first.
+pub(crate) fn synthesize(levels: &mut [Level], ch: usize, p: &Params) -> Vec<LevelStats> {
+    let n = levels.len();
+    let mut stats = Vec::new();
+    for i in (0..n).rev() {
+        let t = Instant::now();
+        let (fine, coarse) = levels.split_at_mut(i + 1);
+        let cur = &fine[i];
+        let (results, mut st) = synthesize_level(cur, coarse, i, ch, p);
+        let cur = &mut fine[i];
+        for (idx, v) in results {
+            cur.data[idx * ch..idx * ch + ch].copy_from_slice(&v[..ch]);
+        }
+        st.seconds = t.elapsed().as_secs_f64();
+        stats.push(st);
+    }
+    stats
+}
+
+/// Neighbourhood layout of level `i` of `n`.
+fn dims(i: usize, n: usize, ch: usize) -> usize {
+    let above = n - 1 - i;
+    ch * (12 + if above >= 1 { 9 } else { 0 } + above.saturating_sub(1))
+}
+
+/// Appends the coarser levels' part of the neighbourhood of level-`i` texel (x, y).
+fn context(coarse: &[Level], x: usize, y: usize, ch: usize, out: &mut Vec<f32>) {
+    for (k, l) in coarse.iter().enumerate() {
+        let s = k + 1;
+        let (px, py) = ((x >> s).min(l.w - 1), (y >> s).min(l.h - 1));
+        let centre = py * l.w + px;
+        if k == 0 {
+            for dy in -1i64..=1 {
+                for dx in -1i64..=1 {
+                    let xx = (px as i64 + dx).clamp(0, l.w as i64 - 1) as usize;
+                    let yy = (py as i64 + dy).clamp(0, l.h as i64 - 1) as usize;
+                    let mut j = yy * l.w + xx;
+                    // Outside the domain stands the centre (which is inside): no gutter.
+                    if !l.domain[j] {
+                        j = centre;
+                    }
+                    out.extend_from_slice(&l.data[j * ch..j * ch + ch]);
+                }
+            }
+        } else {
+            out.extend_from_slice(&l.data[centre * ch..centre * ch + ch]);
+        }
+    }
+}
+
+/// Level-`i` texel at offset `d` from `idx`, if inside the image.
+#[inline]
+fn offset(l: &Level, idx: usize, d: (i32, i32)) -> Option<usize> {
+    let x = (idx % l.w) as i64 + d.0 as i64;
+    let y = (idx / l.w) as i64 + d.1 as i64;
+    if x < 0 || y < 0 || x >= l.w as i64 || y >= l.h as i64 {
+        None
+    } else {
+        Some(y as usize * l.w + x as usize)
+    }
+}
+
+/// Whether `q` can be a source for orientation `o`: it and its causal kernel are known.
+fn valid_source(l: &Level, q: usize, o: usize) -> bool {
+    l.known(q)
+        && CAUSAL
+            .iter()
+            .all(|&d| offset(l, q, orient(o, d)).is_some_and(|j| l.known(j)))
+}
+
+/// Full neighbourhood vector of source texel `q` for orientation `o`.
+fn source_vector(l: &Level, coarse: &[Level], q: usize, o: usize, ch: usize, out: &mut Vec<f32>) {
+    out.clear();
+    for &d in &CAUSAL {
+        let j = offset(l, q, orient(o, d)).expect("valid source");
+        out.extend_from_slice(&l.data[j * ch..j * ch + ch]);
+    }
+    context(coarse, q % l.w, q / l.w, ch, out);
+}
+
+#[inline]
+fn dist2(a: &[f32], b: &[f32]) -> f32 {
+    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
+}
+
+/// Nearest-neighbour search over one orientation's source vectors.
+trait Search: Send + Sync {
+    fn nearest(&self, v: &[f32], k: usize, out: &mut Vec<u32>);
+}
+
+struct Kd<const K: usize>(ImmutableKdTree<f32, K>);
+
+impl<const K: usize> Search for Kd<K> {
+    fn nearest(&self, v: &[f32], k: usize, out: &mut Vec<u32>) {
+        let mut q = [0f32; K];
+        q[..v.len()].copy_from_slice(v);
+        out.clear();
+        if k <= 1 {
+            let r = self
+                .0
+                .query(&q)
+                .nearest_one::<SquaredEuclidean<f32>>()
+                .execute();
+            out.push(r.item);
+        } else {
+            let r = self
+                .0
+                .query(&q)
+                .nearest_n::<SquaredEuclidean<f32>>(NonZero::new(k).expect("k > 1"))
+                .execute();
+            out.extend(r.iter().map(|it| it.item));
+        }
+    }
+}
+
+fn kd<const K: usize>(points: &[f32], dim: usize) -> Box<dyn Search> {
+    let pts: Vec<[f32; K]> = points
+        .chunks(dim)
+        .map(|c| {
+            let mut a = [0f32; K];
+            a[..dim].copy_from_slice(c);
+            a
+        })
+        .collect();
+    Box::new(Kd::<K>(
+        ImmutableKdTree::new_from_slice(&pts).expect("a non-empty point set"),
+    ))
+}
+
+/// A kd-tree over `points` (rows of `dim`), its width padded with zeros to the next supported
+/// constant (kiddo's dimension is a type parameter; zero padding changes no distance).
+fn build_tree(points: &[f32], dim: usize) -> Box<dyn Search> {
+    match dim {
+        0..=8 => kd::<8>(points, dim),
+        9..=16 => kd::<16>(points, dim),
+        17..=24 => kd::<24>(points, dim),
+        25..=32 => kd::<32>(points, dim),
+        33..=48 => kd::<48>(points, dim),
+        49..=64 => kd::<64>(points, dim),
+        65..=72 => kd::<72>(points, dim),
+        73..=96 => kd::<96>(points, dim),
+        _ => kd::<128>(points, dim),
+    }
+}
+
+/// Longest neighbourhood vector a tree accepts.
+pub(crate) const MAX_DIMS: usize = 128;
+
+/// PCA projection: `rows` x `dim` matrix and the mean.
+struct Pca {
+    mean: Vec<f32>,
+    basis: Vec<f32>,
+    rows: usize,
+}
+
+impl Pca {
+    fn fit(vectors: &[f32], dim: usize, keep: f64, max_rows: usize) -> Pca {
+        let n = vectors.len() / dim;
+        let step = (n / 4096).max(1);
+        let sample: Vec<&[f32]> = vectors.chunks(dim).step_by(step).collect();
+        let m = sample.len() as f64;
+        let mut mean = vec![0f64; dim];
+        for s in &sample {
+            for (a, &b) in mean.iter_mut().zip(s.iter()) {
+                *a += b as f64;
+            }
+        }
+        for a in &mut mean {
+            *a /= m;
+        }
+        let mut cov = nalgebra::DMatrix::<f64>::zeros(dim, dim);
+        let mut c = vec![0f64; dim];
+        for s in &sample {
+            for k in 0..dim {
+                c[k] = s[k] as f64 - mean[k];
+            }
+            for a in 0..dim {
+                for b in a..dim {
+                    cov[(a, b)] += c[a] * c[b];
+                }
+            }
+        }
+        for a in 0..dim {
+            for b in 0..a {
+                cov[(a, b)] = cov[(b, a)];
+            }
+        }
+        let eig = nalgebra::SymmetricEigen::new(cov);
+        let mut order: Vec<usize> = (0..dim).collect();
+        order.sort_by(|&a, &b| {
+            eig.eigenvalues[b]
+                .total_cmp(&eig.eigenvalues[a])
+                .then(a.cmp(&b))
+        });
+        let total: f64 = eig.eigenvalues.iter().map(|v| v.max(0.0)).sum();
+        let mut rows = 0;
+        let mut acc = 0.0;
+        for &k in &order {
+            if rows >= max_rows || (total > 0.0 && acc >= keep * total) {
+                break;
+            }
+            acc += eig.eigenvalues[k].max(0.0);
+            rows += 1;
+        }
+        let rows = rows.max(1);
+        let mut basis = Vec::with_capacity(rows * dim);
+        for &k in &order[..rows] {
+            let col = eig.eigenvectors.column(k);
+            // Fix the sign so that the projection does not depend on the solver's choice.
+            let s = if col
+                .iter()
+                .fold(0.0, |a: f64, &v| if v.abs() > a.abs() { v } else { a })
+                < 0.0
+            {
+                -1.0
+            } else {
+                1.0
+            };
+            basis.extend(col.iter().map(|&v| (s * v) as f32));
+        }
+        Pca {
+            mean: mean.iter().map(|&v| v as f32).collect(),
+            basis,
+            rows,
+        }
+    }
+
+    fn project(&self, v: &[f32], out: &mut Vec<f32>) {
+        out.clear();
+        let dim = self.mean.len();
+        for r in 0..self.rows {
+            let b = &self.basis[r * dim..(r + 1) * dim];
+            out.push(
+                v.iter()
+                    .zip(&self.mean)
+                    .zip(b)
+                    .map(|((x, m), w)| (x - m) * w)
+                    .sum(),
+            );
+        }
+    }
+}
+
+/// One orientation's sources in one window.
+struct Sources {
+    positions: Vec<u32>,
+    vectors: Vec<f32>,
+    pca: Option<Pca>,
+    tree: Option<Box<dyn Search>>,
+}
+
+#[derive(Clone, Copy)]
+struct Rect {
+    x0: usize,
+    y0: usize,
+    x1: usize,
+    y1: usize,
+}
+
+impl Rect {
+    fn contains(&self, x: usize, y: usize) -> bool {
+        x >= self.x0 && x < self.x1 && y >= self.y0 && y < self.y1
+    }
+    fn overlaps(&self, o: &Rect) -> bool {
+        self.x0 < o.x1 && o.x0 < self.x1 && self.y0 < o.y1 && o.y0 < self.y1
+    }
+    fn union(&self, o: &Rect) -> Rect {
+        Rect {
+            x0: self.x0.min(o.x0),
+            y0: self.y0.min(o.y0),
+            x1: self.x1.max(o.x1),
+            y1: self.y1.max(o.y1),
+        }
+    }
+}
+
+fn find(parent: &mut [u32], mut a: u32) -> u32 {
+    while parent[a as usize] != a {
+        parent[a as usize] = parent[parent[a as usize] as usize];
+        a = parent[a as usize];
+    }
+    a
+}
+
+/// Masked texels grouped into holes whose kernels cannot touch one another.
+fn components(l: &Level) -> Vec<Vec<usize>> {
+    let masked: Vec<usize> = (0..l.w * l.h).filter(|&i| l.mask[i]).collect();
+    let mut slot = vec![u32::MAX; l.w * l.h];
+    for (k, &i) in masked.iter().enumerate() {
+        slot[i] = k as u32;
+    }
+    let mut parent: Vec<u32> = (0..masked.len() as u32).collect();
+    for (k, &i) in masked.iter().enumerate() {
+        // Earlier texels within Chebyshev distance 2 (the kernel's reach).
+        for &d in &CAUSAL {
+            if let Some(j) = offset(l, i, d) {
+                if slot[j] != u32::MAX {
+                    let (a, b) = (find(&mut parent, k as u32), find(&mut parent, slot[j]));
+                    if a != b {
+                        parent[a.max(b) as usize] = a.min(b);
+                    }
+                }
+            }
+        }
+    }
+    let mut groups: Vec<Vec<usize>> = Vec::new();
+    let mut gid = vec![u32::MAX; masked.len()];
+    for (k, &i) in masked.iter().enumerate() {
+        let r = find(&mut parent, k as u32) as usize;
+        if gid[r] == u32::MAX {
+            gid[r] = groups.len() as u32;
+            groups.push(Vec::new());
+        }
+        groups[gid[r] as usize].push(i);
+    }
+    groups
+}
+
+/// Manhattan distance of every masked texel to the nearest known texel (within the domain).
+fn distances(l: &Level) -> Vec<u32> {
+    let mut d = vec![u32::MAX; l.w * l.h];
+    let mut front: Vec<usize> = Vec::new();
+    for i in 0..l.w * l.h {
+        if l.known(i) {
+            d[i] = 0;
+            front.push(i);
+        }
+    }
+    let mut next = Vec::new();
+    let mut step = 0;
+    while !front.is_empty() {
+        step += 1;
+        next.clear();
+        for &i in &front {
+            for dd in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
+                if let Some(j) = offset(l, i, dd) {
+                    if l.mask[j] && d[j] == u32::MAX {
+                        d[j] = step;
+                        next.push(j);
+                    }
+                }
+            }
+        }
+        std::mem::swap(&mut front, &mut next);
+    }
+    d
+}
+
+/// A hole's fill order: (texel, orientation) in the order texels become fillable, and the
+/// texels that never do.
+fn schedule(l: &Level, comp: &[usize], dist: &[u32]) -> (Vec<(usize, u8)>, Vec<usize>) {
+    let mut avail = std::collections::HashSet::with_capacity(comp.len());
+    let mut heap: BinaryHeap<Reverse<(u32, usize, usize)>> = BinaryHeap::new();
+    let mut stalled = Vec::new();
+    for &i in comp {
+        if dist[i] == u32::MAX {
+            stalled.push(i);
+        } else {
+            heap.push(Reverse((dist[i], i / l.w, i % l.w)));
+        }
+    }
+    let is_avail =
+        |j: usize, avail: &std::collections::HashSet<usize>| l.known(j) || avail.contains(&j);
+    let mut order = Vec::with_capacity(comp.len());
+    let mut fails = 0usize;
+    while let Some(Reverse((d, y, x))) = heap.pop() {
+        let i = y * l.w + x;
+        let fit = (0..8).find(|&o| {
+            CAUSAL.iter().all(|&c| {
+                offset(l, i, orient(o, c)).is_some_and(|j| l.domain[j] && is_avail(j, &avail))
+            })
+        });
+        match fit {
+            Some(o) => {
+                order.push((i, o as u8));
+                avail.insert(i);
+                fails = 0;
+            }
+            None => {
+                fails += 1;
+                if fails > heap.len() {
+                    stalled.push(i);
+                    stalled.extend(heap.drain().map(|Reverse((_, y, x))| y * l.w + x));
+                    break;
+                }
+                heap.push(Reverse((d + 1, y, x)));
+            }
+        }
+    }
+    stalled.sort_unstable();
+    (order, stalled)
+}
+
+struct SplitMix(u64);
+impl SplitMix {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+}
+
+type Fill = (usize, [f32; 4]);
+
+fn synthesize_level(
+    l: &Level,
+    coarse: &[Level],
+    i: usize,
+    ch: usize,
+    p: &Params,
+) -> (Vec<Fill>, LevelStats) {
+    let n = coarse.len() + 1 + i;
+    let dim = dims(i, n, ch);
+    let mut st = LevelStats {
+        level: i,
+        width: l.w,
+        height: l.h,
+        dims: dim,
+        ..Default::default()
+    };
+    let comps = components(l);
+    if comps.is_empty() {
+        return (Vec::new(), st);
+    }
+    let dist = distances(l);
+    let margin = (p.margin >> i).max(8);
+    let rects: Vec<Rect> = comps
+        .iter()
+        .map(|c| {
+            let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
+            for &t in c {
+                let (x, y) = (t % l.w, t / l.w);
+                x0 = x0.min(x);
+                y0 = y0.min(y);
+                x1 = x1.max(x + 1);
+                y1 = y1.max(y + 1);
+            }
+            Rect {
+                x0: x0.saturating_sub(margin),
+                y0: y0.saturating_sub(margin),
+                x1: (x1 + margin).min(l.w),
+                y1: (y1 + margin).min(l.h),
+            }
+        })
+        .collect();
+    // Merge holes whose windows overlap (sweep along x), so each window builds one set of
+    // trees.
+    let mut parent: Vec<u32> = (0..comps.len() as u32).collect();
+    let mut by_x: Vec<usize> = (0..comps.len()).collect();
+    by_x.sort_by_key(|&k| (rects[k].x0, k));
+    for a in 0..by_x.len() {
+        for b in a + 1..by_x.len() {
+            let (ra, rb) = (&rects[by_x[a]], &rects[by_x[b]]);
+            if rb.x0 >= ra.x1 {
+                break;
+            }
+            if ra.overlaps(rb) {
+                let (u, v) = (
+                    find(&mut parent, by_x[a] as u32),
+                    find(&mut parent, by_x[b] as u32),
+                );
+                if u != v {
+                    parent[u.max(v) as usize] = u.min(v);
+                }
+            }
+        }
+    }
+    let mut clusters: Vec<(Rect, Vec<usize>)> = Vec::new();
+    let mut cid = vec![usize::MAX; comps.len()];
+    for k in 0..comps.len() {
+        let r = find(&mut parent, k as u32) as usize;
+        if cid[r] == usize::MAX {
+            cid[r] = clusters.len();
+            clusters.push((rects[k], Vec::new()));
+        }
+        let c = &mut clusters[cid[r]];
+        c.0 = c.0.union(&rects[k]);
+        c.1.push(k);
+    }
+    // Windows can grow into one another after merging; that only means two sets of trees
+    // share source texels, which is harmless.
+    st.windows = clusters.len();
+    let per_cluster: Vec<(Vec<Fill>, LevelStats)> = clusters
+        .par_iter()
+        .enumerate()
+        .map(|(ci, (rect, members))| {
+            let scheds: Vec<(Vec<(usize, u8)>, Vec<usize>)> = members
+                .par_iter()
+                .map(|&k| schedule(l, &comps[k], &dist))
+                .collect();
+            let mut used = [false; 8];
+            for (order, _) in &scheds {
+                for &(_, o) in order {
+                    used[o as usize] = true;
+                }
+            }
+            let sources: Vec<Option<Sources>> = (0..8)
+                .into_par_iter()
+                .map(|o| {
+                    used[o].then(|| {
+                        build_sources(l, coarse, rect, o, ch, dim, p, (i * 131 + ci) as u64)
+                    })
+                })
+                .collect();
+            let mut cs = LevelStats::default();
+            for s in sources.iter().flatten() {
+                cs.sources += s.positions.len() as u64;
+                cs.reduced_dims += s.pca.as_ref().map_or(dim, |pc| pc.rows) as f64;
+            }
+            let fills: Vec<(Vec<Fill>, u64, u64)> = members
+                .par_iter()
+                .zip(&scheds)
+                .map(|(&k, sched)| fill_hole(l, coarse, &comps[k], sched, &sources, rect, i, ch, p))
+                .collect();
+            let mut out = Vec::new();
+            for (f, coherent, stalled) in fills {
+                cs.texels += f.len() as u64 - stalled;
+                cs.coherent += coherent;
+                cs.stalled += stalled;
+                out.extend(f);
+            }
+            cs.windows = sources.iter().flatten().count();
+            (out, cs)
+        })
+        .collect();
+    let mut out = Vec::new();
+    let mut trees = 0usize;
+    for (f, cs) in per_cluster {
+        out.extend(f);
+        st.texels += cs.texels;
+        st.coherent += cs.coherent;
+        st.stalled += cs.stalled;
+        st.sources += cs.sources;
+        st.reduced_dims += cs.reduced_dims;
+        trees += cs.windows;
+    }
+    if trees > 0 {
+        st.reduced_dims /= trees as f64;
+    }
+    (out, st)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn build_sources(
+    l: &Level,
+    coarse: &[Level],
+    rect: &Rect,
+    o: usize,
+    ch: usize,
+    dim: usize,
+    p: &Params,
+    salt: u64,
+) -> Sources {
+    let mut positions: Vec<u32> = Vec::new();
+    for y in rect.y0..rect.y1 {
+        for x in rect.x0..rect.x1 {
+            let q = y * l.w + x;
+            if valid_source(l, q, o) {
+                positions.push(q as u32);
+            }
+        }
+    }
+    if p.max_sources > 0 && positions.len() > p.max_sources {
+        let mut rng = SplitMix(p.seed ^ salt.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ o as u64);
+        for k in 0..p.max_sources {
+            let j = k + (rng.next() % (positions.len() - k) as u64) as usize;
+            positions.swap(k, j);
+        }
+        positions.truncate(p.max_sources);
+        positions.sort_unstable();
+    }
+    let mut vectors = Vec::with_capacity(positions.len() * dim);
+    let mut v = Vec::with_capacity(dim);
+    for &q in &positions {
+        source_vector(l, coarse, q as usize, o, ch, &mut v);
+        vectors.extend_from_slice(&v);
+    }
+    if positions.is_empty() {
+        return Sources {
+            positions,
+            vectors,
+            pca: None,
+            tree: None,
+        };
+    }
+    let (pca, tree) = if p.exact {
+        (None, build_tree(&vectors, dim))
+    } else {
+        let pca = Pca::fit(&vectors, dim, 0.95, 16);
+        let mut red = Vec::with_capacity(positions.len() * pca.rows);
+        let mut r = Vec::new();
+        for c in vectors.chunks(dim) {
+            pca.project(c, &mut r);
+            red.extend_from_slice(&r);
+        }
+        let t = build_tree(&red, pca.rows);
+        (Some(pca), t)
+    };
+    Sources {
+        positions,
+        vectors,
+        pca,
+        tree: Some(tree),
+    }
+}
+
+/// Fills one hole in its schedule's order. Returns the fills, how many came from coherence
+/// candidates and how many stalled.
+#[allow(clippy::too_many_arguments)]
+fn fill_hole(
+    l: &Level,
+    coarse: &[Level],
+    comp: &[usize],
+    sched: &(Vec<(usize, u8)>, Vec<usize>),
+    sources: &[Option<Sources>],
+    rect: &Rect,
+    i: usize,
+    ch: usize,
+    p: &Params,
+) -> (Vec<Fill>, u64, u64) {
+    let (order, stalled) = sched;
+    // Values and origins of the hole's texels as they are filled.
+    let mut local: std::collections::HashMap<usize, ([f32; 4], u32)> =
+        std::collections::HashMap::with_capacity(comp.len());
+    let dim = dims(i, coarse.len() + 1 + i, ch);
+    let factor = 1.0 + p.coherence * 0.5f32.powi(i as i32);
+    let mut query = Vec::with_capacity(dim);
+    let mut cand = Vec::with_capacity(dim);
+    let mut red = Vec::new();
+    let mut hits = Vec::new();
+    let mut coherent = 0u64;
+    let mut out = Vec::with_capacity(comp.len());
+    for &(t, o) in order {
+        let o = o as usize;
+        query.clear();
+        for &d in &CAUSAL {
+            let j = offset(l, t, orient(o, d)).expect("scheduled kernels fit");
+            match local.get(&j) {
+                Some((v, _)) => query.extend_from_slice(&v[..ch]),
+                None => query.extend_from_slice(&l.data[j * ch..j * ch + ch]),
+            }
+        }
+        context(coarse, t % l.w, t / l.w, ch, &mut query);
+        let mut best: Option<(f32, u32, bool)> = None;
+        if let Some(s) = &sources[o] {
+            if let Some(tree) = &s.tree {
+                match &s.pca {
+                    None => tree.nearest(&query, 1, &mut hits),
+                    Some(pca) => {
+                        pca.project(&query, &mut red);
+                        tree.nearest(&red, p.rerank.min(s.positions.len()).max(1), &mut hits);
+                    }
+                }
+                for &h in &hits {
+                    let h = h as usize;
+                    let d = dist2(&query, &s.vectors[h * dim..(h + 1) * dim]);
+                    if best.is_none_or(|b| d < b.0) {
+                        best = Some((d, s.positions[h], false));
+                    }
+                }
+            }
+        }
+        // Coherence (Ashikhmin): shift the origin of every synthesised neighbour back by its
+        // offset.
+        let mut best_coh: Option<(f32, u32)> = None;
+        for &d in &CAUSAL {
+            let od = orient(o, d);
+            let j = offset(l, t, od).expect("fits");
+            let Some((_, src)) = local.get(&j) else {
+                continue;
+            };
+            let Some(c) = offset(l, *src as usize, (-od.0, -od.1)) else {
+                continue;
+            };
+            let (cx, cy) = (c % l.w, c / l.w);
+            if !rect.contains(cx, cy) || !valid_source(l, c, o) {
+                continue;
+            }
+            if best_coh.is_some_and(|b| b.1 == c as u32) {
+                continue;
+            }
+            source_vector(l, coarse, c, o, ch, &mut cand);
+            let dc = dist2(&query, &cand);
+            if best_coh.is_none_or(|b| dc < b.0) {
+                best_coh = Some((dc, c as u32));
+            }
+        }
+        let pick = match (best, best_coh) {
+            (Some(a), Some(c)) if c.0 <= a.0 * factor => Some((c.1, true)),
+            (Some(a), _) => Some((a.1, false)),
+            (None, Some(c)) => Some((c.1, true)),
+            (None, None) => None,
+        };
+        let mut v = [0f32; 4];
+        let src = match pick {
+            Some((q, coh)) => {
+                coherent += coh as u64;
+                let q = q as usize;
+                v[..ch].copy_from_slice(&l.data[q * ch..q * ch + ch]);
+                q as u32
+            }
+            // No source at all: no detail here (the low band alone).
+            None => u32::MAX,
+        };
+        local.insert(t, (v, src));
+        out.push((t, v));
+    }
+    for &t in stalled {
+        out.push((t, [0f32; 4]));
+    }
+    (out, coherent, stalled.len() as u64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn eight_distinct_orientations() {
+        let mut shapes: Vec<Vec<(i32, i32)>> = (0..8)
+            .map(|o| {
+                let mut s: Vec<_> = CAUSAL.iter().map(|&d| orient(o, d)).collect();
+                s.sort();
+                s
+            })
+            .collect();
+        shapes.sort();
+        shapes.dedup();
+        assert_eq!(shapes.len(), 8);
+    }
+
+    #[test]
+    fn dims_follow_the_paper() {
+        // 5x5 causal (12) + 3x3 (9) + 1x1 per level above, per channel.
+        assert_eq!(dims(0, 3, 3), 3 * (12 + 9 + 1));
+        assert_eq!(dims(1, 3, 3), 3 * (12 + 9));
+        assert_eq!(dims(2, 3, 3), 3 * 12);
+        assert_eq!(dims(0, 4, 1), 12 + 9 + 2);
+    }
+
+    #[test]
+    fn every_hole_texel_is_scheduled_once() {
+        let (w, h) = (30, 20);
+        let mask: Vec<bool> = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                (8..20).contains(&x) && (5..15).contains(&y) && !(x == 12 && y < 10)
+            })
+            .collect();
+        let l = Level {
+            w,
+            h,
+            data: vec![0.0; w * h],
+            domain: vec![true; w * h],
+            mask,
+        };
+        let comps = components(&l);
+        assert_eq!(comps.len(), 1);
+        let (order, stalled) = schedule(&l, &comps[0], &distances(&l));
+        assert!(stalled.is_empty());
+        let mut seen: Vec<usize> = order.iter().map(|x| x.0).collect();
+        seen.sort();
+        assert_eq!(seen, comps[0]);
+        // Every kernel reads only known or earlier-filled texels.
+        let mut filled = std::collections::HashSet::new();
+        for &(t, o) in &order {
+            for &d in &CAUSAL {
+                let j = offset(&l, t, orient(o as usize, d)).unwrap();
+                assert!(l.known(j) || filled.contains(&j));
+            }
+            filled.insert(t);
+        }
+    }
+}
