@@ -198,6 +198,14 @@ enum Command {
         /// Known pixels around a hole that may serve as its source, pixels.
         #[arg(long, default_value_t = 64)]
         margin: usize,
+        /// Synthesise the high band as it is, without dividing out its local amplitude (the
+        /// paper's way; detail fades under intensity ramps).
+        #[arg(long)]
+        no_contrast_normalisation: bool,
+        /// How much of the hole's local mean comes from diffusion instead of synthesis, 0
+        /// (the paper) to 1 (closest to the truth at coarse scales, flatter to the eye).
+        #[arg(long, default_value_t = 0.5)]
+        mean_from_diffusion: f32,
         /// Print the report (kappa, per-level counts, timings) as JSON on stdout.
         #[arg(long)]
         json: bool,
@@ -597,6 +605,8 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             coherence,
             max_sources,
             margin,
+            no_contrast_normalisation,
+            mean_from_diffusion,
             json,
         } => {
             let opts = scantex::restore::RestoreOptions {
@@ -607,6 +617,8 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
                 coherence,
                 max_sources,
                 margin,
+                normalise_contrast: !no_contrast_normalisation,
+                mean_from_diffusion,
                 ..Default::default()
             };
             let (img, depth) = scantex::io::image::read_planar(&image)?;

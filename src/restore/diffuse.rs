@@ -240,3 +240,129 @@ mod tests {
         }
     }
 }
+
+/// Local amplitude of a zero-mean band: the square root of the mean over channels of the
+/// band squared, averaged over known pixels with three passes of a box filter of radius `r`
+/// (close to a Gaussian of sigma 0.9 r), then diffused into the fill pixels like the low band.
+/// Floored at a small fraction of its median so that flat regions do not divide by zero.
+pub(crate) fn envelope(
+    band: &[f32],
+    w: usize,
+    h: usize,
+    ch: usize,
+    fill: &[bool],
+    domain: &[bool],
+    r: usize,
+    sweeps: usize,
+) -> Vec<f32> {
+    let known: Vec<f32> = (0..w * h)
+        .map(|i| (domain[i] && !fill[i]) as u8 as f32)
+        .collect();
+    let mut e2: Vec<f32> = (0..w * h)
+        .map(|i| {
+            known[i] * band[i * ch..i * ch + ch].iter().map(|v| v * v).sum::<f32>() / ch as f32
+        })
+        .collect();
+    let mut wt = known.clone();
+    for _ in 0..3 {
+        box_blur(&mut e2, w, h, r);
+        box_blur(&mut wt, w, h, r);
+    }
+    let mut env: Vec<f32> = e2
+        .iter()
+        .zip(&wt)
+        .map(|(&a, &b)| {
+            if b > 1e-6 {
+                (a / b).max(0.0).sqrt()
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    // Texels with no known neighbour within reach get the diffused value.
+    let far: Vec<bool> = (0..w * h).map(|i| fill[i] || wt[i] <= 1e-6).collect();
+    inpaint(&mut env, w, h, 1, &far, domain, sweeps);
+    let mut sorted: Vec<f32> = (0..w * h)
+        .filter(|&i| domain[i] && !fill[i])
+        .map(|i| env[i])
+        .collect();
+    let floor = if sorted.is_empty() {
+        1e-3
+    } else {
+        let mid = sorted.len() / 2;
+        let (_, m, _) = sorted.select_nth_unstable_by(mid, f32::total_cmp);
+        (0.05 * *m).max(1e-4)
+    };
+    for v in &mut env {
+        *v = v.max(floor);
+    }
+    env
+}
+
+/// In-place box filter of radius `r` (zero outside the image), rows then columns.
+fn box_blur(v: &mut [f32], w: usize, h: usize, r: usize) {
+    let run = |src: &[f32], n: usize, out: &mut [f32]| {
+        let mut acc = 0f32;
+        for k in 0..r.min(n) {
+            acc += src[k];
+        }
+        for x in 0..n {
+            if x + r < n {
+                acc += src[x + r];
+            }
+            out[x] = acc;
+            if x >= r {
+                acc -= src[x - r];
+            }
+        }
+    };
+    let mut tmp = vec![0f32; w * h];
+    tmp.par_chunks_mut(w)
+        .zip(v.par_chunks(w))
+        .for_each(|(o, s)| run(s, w, o));
+    // Columns through a transpose.
+    let mut t = vec![0f32; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            t[x * h + y] = tmp[y * w + x];
+        }
+    }
+    let mut t2 = vec![0f32; w * h];
+    t2.par_chunks_mut(h)
+        .zip(t.par_chunks(h))
+        .for_each(|(o, s)| run(s, h, o));
+    for y in 0..h {
+        for x in 0..w {
+            v[y * w + x] = t2[x * h + y];
+        }
+    }
+}
+
+/// Normalised blur: three box passes of radius `r` over the pixels with `weight` 1, each
+/// channel divided by the blurred weight (0 where no weighted pixel is in reach).
+pub(crate) fn masked_blur(
+    data: &[f32],
+    w: usize,
+    h: usize,
+    ch: usize,
+    weight: &[bool],
+    r: usize,
+) -> Vec<f32> {
+    let mut wt: Vec<f32> = weight.iter().map(|&b| b as u8 as f32).collect();
+    for _ in 0..3 {
+        box_blur(&mut wt, w, h, r);
+    }
+    let mut out = vec![0f32; w * h * ch];
+    for c in 0..ch {
+        let mut v: Vec<f32> = (0..w * h)
+            .map(|i| if weight[i] { data[i * ch + c] } else { 0.0 })
+            .collect();
+        for _ in 0..3 {
+            box_blur(&mut v, w, h, r);
+        }
+        for i in 0..w * h {
+            out[i * ch + c] = if wt[i] > 1e-6 { v[i] / wt[i] } else { 0.0 };
+        }
+    }
+    out
+}

@@ -104,6 +104,17 @@ pub struct RestoreOptions {
     pub margin: usize,
     /// Diffusion sweeps per level of the low band's coarse-to-fine cascade. Default: 40.
     pub sweeps: usize,
+    /// Divide the high band by its local amplitude before synthesis and multiply the
+    /// diffused amplitude back in the hole (not in the paper). Nearest-neighbour search
+    /// favours low-contrast neighbourhoods, so under an intensity ramp the hole takes the
+    /// dark side's faint detail; normalising removes that. Default: true.
+    pub normalise_contrast: bool,
+    /// How much of the synthesised band's local mean (three box passes of radius 1, sigma
+    /// about 1.4 pixels) in the hole is replaced by the diffused local mean of the known side
+    /// (not in the paper), 0 to 1. Synthesis copies texture, and with it a local mean
+    /// unrelated to the truth's; 1 leaves synthesis only the finest detail (closest to the
+    /// truth at coarse scales, flatter to the eye in large holes), 0 is the paper. Default: 0.5.
+    pub mean_from_diffusion: f32,
 }
 
 impl Default for RestoreOptions {
@@ -118,6 +129,8 @@ impl Default for RestoreOptions {
             max_sources: 16384,
             margin: 64,
             sweeps: 40,
+            normalise_contrast: true,
+            mean_from_diffusion: 0.5,
         }
     }
 }
@@ -141,6 +154,12 @@ impl RestoreOptions {
             return Err(Error::Invalid(format!(
                 "the kappa threshold must be > 0, not {}",
                 self.kappa_threshold
+            )));
+        }
+        if !(0.0..=1.0).contains(&self.mean_from_diffusion) {
+            return Err(Error::Invalid(format!(
+                "the weight of the diffused local mean must be 0 to 1, not {}",
+                self.mean_from_diffusion
             )));
         }
         if self.method == Method::Fast && self.max_sources == 0 {
@@ -181,8 +200,13 @@ pub struct RestoreReport {
 /// Longest side on which kappa is chosen: kappa counts cycles across the image, so a
 /// box-downsampled copy gives the same count at a fraction of the cost.
 const KAPPA_ANALYSIS_SIDE: usize = 512;
+/// Box radius of the contrast envelope (three passes: sigma about 6 pixels).
+const ENVELOPE_RADIUS: usize = 12;
+/// Box radius of the local mean that diffusion supplies (see
+/// [`RestoreOptions::mean_from_diffusion`]).
+const MEAN_RADIUS: usize = 1;
 /// Largest kappa the automatic rule tries.
-const KAPPA_MAX_AUTO: usize = 64;
+const KAPPA_MAX_AUTO: usize = 16;
 
 /// Fills the texels of `mask` (true = fill) of `image`. With a `domain`, texels outside it
 /// are neither read nor written (an atlas's gutter); the mask is clipped to the domain.
@@ -259,6 +283,7 @@ pub fn inpaint(
     report.kappa = kappa;
     let mut low = vec![0f32; w * h * ch];
     let mut high = vec![0f32; w * h * ch];
+
     for c in 0..ch {
         let plane: Vec<f32> = (0..w * h).map(|i| pre[i * ch + c]).collect();
         let (l, hb) = dct::split(&plane, w, h, kappa);
@@ -273,6 +298,16 @@ pub fn inpaint(
     diffuse::inpaint(&mut low, w, h, ch, &fill, domain, opts.sweeps);
     report.seconds_diffusion = lap(&mut t);
 
+    let env = opts
+        .normalise_contrast
+        .then(|| diffuse::envelope(&high, w, h, ch, &fill, domain, ENVELOPE_RADIUS, opts.sweeps));
+    if let Some(e) = &env {
+        for i in 0..w * h {
+            for c in 0..ch {
+                high[i * ch + c] /= e[i];
+            }
+        }
+    }
     let mut levels = synth::pyramid(high, w, h, ch, &fill, domain, opts.levels);
     let params = synth::Params {
         exact: opts.method == Method::Paper,
@@ -287,6 +322,22 @@ pub fn inpaint(
         rerank: 8,
     };
     report.levels = synth::synthesize(&mut levels, ch, &params);
+    if opts.mean_from_diffusion > 0.0 {
+        // Synthesis copies texture, and with it a local mean that is unrelated to the
+        // truth's; diffusion gets the mean right and the detail wrong. Keep the synthesised
+        // band's fine detail only and take its local mean from diffusion of the known side.
+        let hb = &mut levels[0].data;
+        let known: Vec<bool> = (0..w * h).map(|i| domain[i] && !fill[i]).collect();
+        let mut mean_known = diffuse::masked_blur(hb, w, h, ch, &known, MEAN_RADIUS);
+        diffuse::inpaint(&mut mean_known, w, h, ch, &fill, domain, opts.sweeps);
+        let mean_synth = diffuse::masked_blur(hb, w, h, ch, domain, MEAN_RADIUS);
+        for i in (0..w * h).filter(|&i| fill[i]) {
+            for c in 0..ch {
+                hb[i * ch + c] +=
+                    opts.mean_from_diffusion * (mean_known[i * ch + c] - mean_synth[i * ch + c]);
+            }
+        }
+    }
     report.seconds_synthesis = lap(&mut t);
 
     let mut out = image.clone();
@@ -294,7 +345,8 @@ pub fn inpaint(
     for i in 0..w * h {
         if fill[i] {
             for c in 0..ch {
-                out.data[i * ch + c] = low[i * ch + c] + h0[i * ch + c];
+                let amp = env.as_ref().map_or(1.0, |e| e[i]);
+                out.data[i * ch + c] = low[i * ch + c] + amp * h0[i * ch + c];
             }
         }
     }
@@ -390,8 +442,11 @@ mod tests {
     fn kappa_zero_is_pure_synthesis_and_kappa_max_pure_inpainting() {
         let img = texture(64, 48, true);
         let mask = disc(64, 48, 9.0);
+        // Without contrast normalisation, which rescales copied values by the envelope.
         let mut o = RestoreOptions {
             kappa: Kappa::Fixed(0),
+            normalise_contrast: false,
+            mean_from_diffusion: 0.0,
             ..Default::default()
         };
         let (syn, r) = inpaint(&img, &mask, None, &o).unwrap();
