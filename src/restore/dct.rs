@@ -2,19 +2,19 @@
 //! kappa subbands, and kappa chosen from the autocorrelation of the high band.
 
 use rayon::prelude::*;
-use rustdct::{DctPlanner, TransformType2And3};
+use rustdct::{DctNum, DctPlanner, TransformType2And3};
 use std::sync::Arc;
 
 /// An orthonormal separable 2D DCT-II of a `w` x `h` image (and its inverse, DCT-III).
-pub(crate) struct Dct2 {
+pub(crate) struct Dct2<T: DctNum = f64> {
     w: usize,
     h: usize,
-    row: Arc<dyn TransformType2And3<f64>>,
-    col: Arc<dyn TransformType2And3<f64>>,
+    row: Arc<dyn TransformType2And3<T>>,
+    col: Arc<dyn TransformType2And3<T>>,
 }
 
-impl Dct2 {
-    pub(crate) fn new(w: usize, h: usize) -> Dct2 {
+impl<T: DctNum> Dct2<T> {
+    pub(crate) fn new(w: usize, h: usize) -> Dct2<T> {
         let mut p = DctPlanner::new();
         Dct2 {
             w,
@@ -25,16 +25,16 @@ impl Dct2 {
     }
 
     /// In place, row-major `h` rows of `w`.
-    pub(crate) fn forward(&self, data: &mut [f64]) {
+    pub(crate) fn forward(&self, data: &mut [T]) {
         self.pass(data, true);
     }
 
     /// Exact inverse of [`Dct2::forward`].
-    pub(crate) fn inverse(&self, data: &mut [f64]) {
+    pub(crate) fn inverse(&self, data: &mut [T]) {
         self.pass(data, false);
     }
 
-    fn pass(&self, data: &mut [f64], forward: bool) {
+    fn pass(&self, data: &mut [T], forward: bool) {
         let (w, h) = (self.w, self.h);
         rows(data, w, &*self.row, forward);
         let mut t = transpose(data, w, h);
@@ -47,22 +47,24 @@ impl Dct2 {
 /// Orthonormal 1D transforms of every row. rustdct does not normalise: DCT-II scaled by
 /// sqrt(1/n) (k = 0) and sqrt(2/n) is orthonormal; the inverse undoes the scale and runs
 /// DCT-III, which carries a factor 1/2 on the first coefficient.
-fn rows(data: &mut [f64], n: usize, t: &dyn TransformType2And3<f64>, forward: bool) {
-    let s0 = (1.0 / n as f64).sqrt();
-    let s = (2.0 / n as f64).sqrt();
+fn rows<T: DctNum>(data: &mut [T], n: usize, t: &dyn TransformType2And3<T>, forward: bool) {
+    let c = |v: f64| T::from_f64(v).expect("a float type");
+    let s0 = c((1.0 / n as f64).sqrt());
+    let s = c((2.0 / n as f64).sqrt());
+    let two_s0 = c(2.0 * (1.0 / n as f64).sqrt());
     data.par_chunks_mut(n).for_each_init(
-        || vec![0f64; t.get_scratch_len()],
+        || vec![T::zero(); t.get_scratch_len()],
         |scratch, row| {
             if forward {
                 t.process_dct2_with_scratch(row, scratch);
-                row[0] *= s0;
+                row[0] = row[0] * s0;
                 for v in &mut row[1..] {
-                    *v *= s;
+                    *v = *v * s;
                 }
             } else {
-                row[0] *= 2.0 * s0;
+                row[0] = row[0] * two_s0;
                 for v in &mut row[1..] {
-                    *v *= s;
+                    *v = *v * s;
                 }
                 t.process_dct3_with_scratch(row, scratch);
             }
@@ -70,8 +72,8 @@ fn rows(data: &mut [f64], n: usize, t: &dyn TransformType2And3<f64>, forward: bo
     );
 }
 
-fn transpose(data: &[f64], w: usize, h: usize) -> Vec<f64> {
-    let mut out = vec![0f64; w * h];
+fn transpose<T: DctNum>(data: &[T], w: usize, h: usize) -> Vec<T> {
+    let mut out = vec![T::zero(); w * h];
     out.par_chunks_mut(h).enumerate().for_each(|(x, col)| {
         for (y, v) in col.iter_mut().enumerate() {
             *v = data[y * w + x];
@@ -92,8 +94,8 @@ pub(crate) fn in_low_band(u: usize, v: usize, w: usize, h: usize, kappa: usize) 
 /// Splits one channel into (low, high) with low = inverse DCT of the first `kappa` subbands
 /// and high = image - low.
 pub(crate) fn split(channel: &[f32], w: usize, h: usize, kappa: usize) -> (Vec<f32>, Vec<f32>) {
-    let dct = Dct2::new(w, h);
-    let mut c: Vec<f64> = channel.iter().map(|&v| v as f64).collect();
+    let dct = Dct2::<f32>::new(w, h);
+    let mut c = channel.to_vec();
     dct.forward(&mut c);
     for v in 0..h {
         for u in 0..w {
@@ -103,7 +105,7 @@ pub(crate) fn split(channel: &[f32], w: usize, h: usize, kappa: usize) -> (Vec<f
         }
     }
     dct.inverse(&mut c);
-    let low: Vec<f32> = c.iter().map(|&v| v as f32).collect();
+    let low = c;
     let high = channel.iter().zip(&low).map(|(a, b)| a - b).collect();
     (low, high)
 }
@@ -125,8 +127,8 @@ pub(crate) fn auto_kappa(
     max_kappa: usize,
 ) -> (usize, Vec<f64>) {
     let s = w.max(h);
-    let dct = Dct2::new(w, h);
-    let sq = Dct2::new(s, s);
+    let dct = Dct2::<f64>::new(w, h);
+    let sq = Dct2::<f64>::new(s, s);
     let mut c = y.to_vec();
     dct.forward(&mut c);
     let mut curve = Vec::new();
@@ -185,7 +187,7 @@ mod tests {
         let (w, h) = (12, 7);
         let img: Vec<f64> = (0..w * h).map(|i| ((i * 37 % 11) as f64).sin()).collect();
         let mut c = img.clone();
-        let d = Dct2::new(w, h);
+        let d = Dct2::<f64>::new(w, h);
         d.forward(&mut c);
         let e0: f64 = img.iter().map(|v| v * v).sum();
         let e1: f64 = c.iter().map(|v| v * v).sum();

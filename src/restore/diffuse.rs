@@ -100,7 +100,7 @@ fn init_from_coarser(
         smooth(&mut cd, w2, h2, ch, &cfill, &cdomain, sweeps);
     }
     // Bilinear from the coarse grid (sample centres at 2j + 0.5).
-    for y in 0..h {
+    data.par_chunks_mut(w * ch).enumerate().for_each(|(y, row)| {
         for x in 0..w {
             let i = y * w + x;
             if !fill[i] {
@@ -111,7 +111,7 @@ fn init_from_coarser(
             let (x0, y0) = (fx.floor() as usize, fy.floor() as usize);
             let (x1, y1) = ((x0 + 1).min(w2 - 1), (y0 + 1).min(h2 - 1));
             let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
-            let mut acc = vec![0f32; ch];
+            let mut acc = [0f32; 4];
             let mut wsum = 0f32;
             for (xx, yy, wt) in [
                 (x0, y0, (1.0 - tx) * (1.0 - ty)),
@@ -129,11 +129,11 @@ fn init_from_coarser(
             }
             if wsum > 0.0 {
                 for c in 0..ch {
-                    data[i * ch + c] = acc[c] / wsum;
+                    row[x * ch + c] = acc[c] / wsum;
                 }
             }
         }
-    }
+    });
 }
 
 /// Jacobi sweeps of the diffusion kernel over the fill pixels.
@@ -301,39 +301,56 @@ pub(crate) fn envelope(
 
 /// In-place box filter of radius `r` (zero outside the image), rows then columns.
 fn box_blur(v: &mut [f32], w: usize, h: usize, r: usize) {
-    let run = |src: &[f32], n: usize, out: &mut [f32]| {
-        let mut acc = 0f32;
-        for k in 0..r.min(n) {
-            acc += src[k];
-        }
-        for x in 0..n {
-            if x + r < n {
-                acc += src[x + r];
-            }
-            out[x] = acc;
-            if x >= r {
-                acc -= src[x - r];
-            }
-        }
-    };
     let mut tmp = vec![0f32; w * h];
-    tmp.par_chunks_mut(w)
-        .zip(v.par_chunks(w))
-        .for_each(|(o, s)| run(s, w, o));
-    // Columns through a transpose.
-    let mut t = vec![0f32; w * h];
-    for y in 0..h {
+    tmp.par_chunks_mut(w).zip(v.par_chunks(w)).for_each(|(o, s)| {
+        let mut acc: f32 = s[..r.min(w)].iter().sum();
         for x in 0..w {
-            t[x * h + y] = tmp[y * w + x];
+            if x + r < w {
+                acc += s[x + r];
+            }
+            o[x] = acc;
+            if x >= r {
+                acc -= s[x - r];
+            }
         }
-    }
-    let mut t2 = vec![0f32; w * h];
-    t2.par_chunks_mut(h)
-        .zip(t.par_chunks(h))
-        .for_each(|(o, s)| run(s, h, o));
-    for y in 0..h {
-        for x in 0..w {
-            v[y * w + x] = t2[x * h + y];
+    });
+    // Columns: running sums over rows, one accumulator per column, strips of columns in
+    // parallel (row-major reads, no transpose).
+    const STRIP: usize = 256;
+    let strips: Vec<(usize, Vec<f32>)> = (0..w.div_ceil(STRIP))
+        .into_par_iter()
+        .map(|k| {
+            let (x0, x1) = (k * STRIP, ((k + 1) * STRIP).min(w));
+            let sw = x1 - x0;
+            let mut acc = vec![0f32; sw];
+            for y in 0..r.min(h) {
+                for (a, &t) in acc.iter_mut().zip(&tmp[y * w + x0..y * w + x1]) {
+                    *a += t;
+                }
+            }
+            let mut out = vec![0f32; sw * h];
+            for y in 0..h {
+                if y + r < h {
+                    let row = &tmp[(y + r) * w + x0..(y + r) * w + x1];
+                    for (a, &t) in acc.iter_mut().zip(row) {
+                        *a += t;
+                    }
+                }
+                out[y * sw..(y + 1) * sw].copy_from_slice(&acc);
+                if y >= r {
+                    let row = &tmp[(y - r) * w + x0..(y - r) * w + x1];
+                    for (a, &t) in acc.iter_mut().zip(row) {
+                        *a -= t;
+                    }
+                }
+            }
+            (x0, out)
+        })
+        .collect();
+    for (x0, out) in strips {
+        let sw = out.len() / h;
+        for y in 0..h {
+            v[y * w + x0..y * w + x0 + sw].copy_from_slice(&out[y * sw..(y + 1) * sw]);
         }
     }
 }

@@ -548,8 +548,15 @@ fn distances(l: &Level) -> Vec<u32> {
 
 /// A hole's fill order: (texel, orientation) in the order texels become fillable, and the
 /// texels that never do.
-fn schedule(l: &Level, comp: &[usize], dist: &[u32]) -> (Vec<(usize, u8)>, Vec<usize>) {
-    let mut avail = std::collections::HashSet::with_capacity(comp.len());
+fn schedule(
+    l: &Level,
+    comp: &[usize],
+    dist: &[u32],
+    slot: &[u32],
+) -> (Vec<(usize, u8)>, Vec<usize>) {
+    // Masked texels within a kernel's reach belong to the same hole (components are built
+    // with that reach), so `slot` indexes this hole's own flags.
+    let mut avail = vec![false; comp.len()];
     let mut heap: BinaryHeap<Reverse<(u32, usize, usize)>> = BinaryHeap::new();
     let mut stalled = Vec::new();
     for &i in comp {
@@ -560,7 +567,7 @@ fn schedule(l: &Level, comp: &[usize], dist: &[u32]) -> (Vec<(usize, u8)>, Vec<u
         }
     }
     let is_avail =
-        |j: usize, avail: &std::collections::HashSet<usize>| l.known(j) || avail.contains(&j);
+        |j: usize, avail: &[bool]| l.known(j) || (slot[j] != u32::MAX && avail[slot[j] as usize]);
     let mut order = Vec::with_capacity(comp.len());
     let mut fails = 0usize;
     while let Some(Reverse((d, y, x))) = heap.pop() {
@@ -573,7 +580,7 @@ fn schedule(l: &Level, comp: &[usize], dist: &[u32]) -> (Vec<(usize, u8)>, Vec<u
         match fit {
             Some(o) => {
                 order.push((i, o as u8));
-                avail.insert(i);
+                avail[slot[i] as usize] = true;
                 fails = 0;
             }
             None => {
@@ -625,6 +632,12 @@ fn synthesize_level(
         return (Vec::new(), st);
     }
     let dist = distances(l);
+    let mut slot = vec![u32::MAX; l.w * l.h];
+    for c in &comps {
+        for (k, &t) in c.iter().enumerate() {
+            slot[t] = k as u32;
+        }
+    }
     let margin = (p.margin >> i).max(8);
     let rects: Vec<Rect> = comps
         .iter()
@@ -688,7 +701,7 @@ fn synthesize_level(
         .map(|(ci, (rect, members))| {
             let scheds: Vec<(Vec<(usize, u8)>, Vec<usize>)> = members
                 .par_iter()
-                .map(|&k| schedule(l, &comps[k], &dist))
+                .map(|&k| schedule(l, &comps[k], &dist, &slot))
                 .collect();
             let mut used = [false; 8];
             for (order, _) in &scheds {
@@ -712,7 +725,9 @@ fn synthesize_level(
             let fills: Vec<(Vec<Fill>, u64, u64)> = members
                 .par_iter()
                 .zip(&scheds)
-                .map(|(&k, sched)| fill_hole(l, coarse, &comps[k], sched, &sources, rect, i, ch, p))
+                .map(|(&k, sched)| {
+                    fill_hole(l, coarse, &comps[k], &slot, sched, &sources, rect, i, ch, p)
+                })
                 .collect();
             let mut out = Vec::new();
             for (f, coherent, stalled) in fills {
@@ -813,6 +828,7 @@ fn fill_hole(
     l: &Level,
     coarse: &[Level],
     comp: &[usize],
+    slot: &[u32],
     sched: &(Vec<(usize, u8)>, Vec<usize>),
     sources: &[Option<Sources>],
     rect: &Rect,
@@ -821,9 +837,10 @@ fn fill_hole(
     p: &Params,
 ) -> (Vec<Fill>, u64, u64) {
     let (order, stalled) = sched;
-    // Values and origins of the hole's texels as they are filled.
-    let mut local: std::collections::HashMap<usize, ([f32; 4], u32)> =
-        std::collections::HashMap::with_capacity(comp.len());
+    // Values and origins of the hole's texels as they are filled (indexed by `slot`).
+    let mut vals = vec![[0f32; 4]; comp.len()];
+    let mut origin = vec![u32::MAX; comp.len()];
+    let mut done = vec![false; comp.len()];
     let dim = dims(i, coarse.len() + 1 + i, ch);
     let factor = 1.0 + p.coherence * 0.5f32.powi(i as i32);
     let mut query = Vec::with_capacity(dim);
@@ -837,9 +854,10 @@ fn fill_hole(
         query.clear();
         for &d in &CAUSAL {
             let j = offset(l, t, orient(o, d)).expect("scheduled kernels fit");
-            match local.get(&j) {
-                Some((v, _)) => query.extend_from_slice(&v[..ch]),
-                None => query.extend_from_slice(&l.data[j * ch..j * ch + ch]),
+            if slot[j] != u32::MAX {
+                query.extend_from_slice(&vals[slot[j] as usize][..ch]);
+            } else {
+                query.extend_from_slice(&l.data[j * ch..j * ch + ch]);
             }
         }
         context(coarse, t % l.w, t / l.w, ch, &mut query);
@@ -865,22 +883,31 @@ fn fill_hole(
         // Coherence (Ashikhmin): shift the origin of every synthesised neighbour back by its
         // offset.
         let mut best_coh: Option<(f32, u32)> = None;
+        // Coherent neighbours usually propose the same texel: score each candidate once.
+        let mut tried = [u32::MAX; 12];
+        let mut ntried = 0;
         for &d in &CAUSAL {
             let od = orient(o, d);
             let j = offset(l, t, od).expect("fits");
-            let Some((_, src)) = local.get(&j) else {
+            if slot[j] == u32::MAX || !done[slot[j] as usize] {
                 continue;
-            };
-            let Some(c) = offset(l, *src as usize, (-od.0, -od.1)) else {
+            }
+            let src = origin[slot[j] as usize];
+            if src == u32::MAX {
+                continue;
+            }
+            let Some(c) = offset(l, src as usize, (-od.0, -od.1)) else {
                 continue;
             };
             let (cx, cy) = (c % l.w, c / l.w);
             if !rect.contains(cx, cy) || !valid_source(l, c, o) {
                 continue;
             }
-            if best_coh.is_some_and(|b| b.1 == c as u32) {
+            if tried[..ntried].contains(&(c as u32)) {
                 continue;
             }
+            tried[ntried] = c as u32;
+            ntried += 1;
             source_vector(l, coarse, c, o, ch, &mut cand);
             let dc = dist2(&query, &cand);
             if best_coh.is_none_or(|b| dc < b.0) {
@@ -904,7 +931,10 @@ fn fill_hole(
             // No source at all: no detail here (the low band alone).
             None => u32::MAX,
         };
-        local.insert(t, (v, src));
+        let k = slot[t] as usize;
+        vals[k] = v;
+        origin[k] = src;
+        done[k] = true;
         out.push((t, v));
     }
     for &t in stalled {
@@ -958,7 +988,11 @@ mod tests {
         };
         let comps = components(&l);
         assert_eq!(comps.len(), 1);
-        let (order, stalled) = schedule(&l, &comps[0], &distances(&l));
+        let mut slot = vec![u32::MAX; w * h];
+        for (k, &t) in comps[0].iter().enumerate() {
+            slot[t] = k as u32;
+        }
+        let (order, stalled) = schedule(&l, &comps[0], &distances(&l), &slot);
         assert!(stalled.is_empty());
         let mut seen: Vec<usize> = order.iter().map(|x| x.0).collect();
         seen.sort();
