@@ -147,6 +147,21 @@ enum Command {
         /// that makes both sides of every border agree.
         #[arg(long)]
         no_seam_levelling: bool,
+        /// Leave the texels no photograph saw with the merge's vertex-colour interpolation
+        /// instead of restoring them (diffusion of the low band + synthesis of the detail).
+        #[arg(long)]
+        no_restore: bool,
+        /// Restoration's neighbour search: fast (PCA-reduced kd-tree, re-ranked) or paper
+        /// (exact kd-tree on full neighbourhoods; slower).
+        #[arg(long, default_value = "fast")]
+        restore_method: scantex::restore::Method,
+        /// Largest unseen hole restored, texels; larger regions keep their vertex colours (0 =
+        /// no limit; a region of a million texels takes minutes).
+        #[arg(long, default_value_t = 16384)]
+        max_hole: usize,
+        /// Seed of restoration's random choices (the same seed gives the same bytes).
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
         /// Longest side of the per-photograph depth map, pixels.
         #[arg(long, default_value_t = 2048)]
         depth_resolution: u32,
@@ -441,6 +456,10 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             levels,
             kernel_a,
             no_seam_levelling,
+            no_restore,
+            restore_method,
+            max_hole,
+            seed,
             depth_resolution,
             max_views,
             gutter_fill,
@@ -472,6 +491,18 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             opts.merge.levels = levels;
             opts.merge.a = kernel_a;
             opts.merge.level_seams = !no_seam_levelling;
+            opts.restoration = if no_restore {
+                scantex::pipeline::Restoration::Off
+            } else {
+                scantex::pipeline::Restoration::Synthesis {
+                    options: scantex::restore::RestoreOptions {
+                        method: restore_method,
+                        seed,
+                        ..Default::default()
+                    },
+                    max_hole,
+                }
+            };
             opts.bind.background = match background.as_str() {
                 "auto" => scantex::bind::Background::Estimate,
                 "off" => scantex::bind::Background::Off,

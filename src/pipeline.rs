@@ -1,7 +1,7 @@
 //! `scantex texture`: the stages in order, with timings, peak memory and the outputs.
 //!
 //! mesh + photographs -> [`atlas::parameterize`] -> [`bind::bind`] -> [`resample::resample`]
-//! -> textured mesh. Merging (stage 4) and restoration (stage 5) slot in after resampling.
+//! -> [`merge::merge`] -> [`restore::restore_atlas`] -> textured mesh.
 
 use crate::atlas::{self, AtlasOptions, AtlasReport};
 use crate::bind::{self, BindOptions, Rejections};
@@ -12,6 +12,7 @@ use crate::mesh::Mesh;
 use crate::photometric::{self, GainModel, Gains, PhotometricOptions};
 use crate::progress::Progress;
 use crate::resample::{ResampleOptions, ResampleStats, Resampled};
+use crate::restore::{self, RestoreOptions};
 use crate::scene::Photo;
 use crate::seams::{seam_visibility, SeamReport};
 use image::{DynamicImage, Rgb32FImage};
@@ -61,6 +62,32 @@ impl std::str::FromStr for TextureFormat {
     }
 }
 
+/// Stage 5 on the atlas.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Restoration {
+    /// Leave the merge stage's vertex-colour interpolation in the unseen texels.
+    Off,
+    /// Diffusion of the low band plus synthesis of the high band from the chart's observed
+    /// texels (§5), for holes of at most `max_hole` texels (larger unseen regions keep their
+    /// vertex colours; 0 = no limit).
+    Synthesis {
+        /// The restoration itself.
+        options: RestoreOptions,
+        /// Largest hole restored, texels. Default: 16384 (a 128 x 128 region).
+        max_hole: usize,
+    },
+}
+
+impl Default for Restoration {
+    fn default() -> Self {
+        Restoration::Synthesis {
+            options: RestoreOptions::default(),
+            max_hole: 16384,
+        }
+    }
+}
+
 /// Everything `scantex texture` can be told.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct TextureOptions {
@@ -78,6 +105,9 @@ pub struct TextureOptions {
     /// Merging the photographs. Default: [`MergeOptions::default`] (multiband, best-view
     /// masks); [`TextureOptions::paper`] uses the paper's masks.
     pub merge: MergeOptions,
+    /// What fills the texels no photograph saw. Default:
+    /// [`Restoration::Synthesis`] with [`RestoreOptions::default`], holes up to 16384 texels.
+    pub restoration: Restoration,
     /// Atlas file format. Default: PNG.
     pub format: TextureFormat,
 }
@@ -154,6 +184,8 @@ pub struct TextureReport {
     pub resample: ResampleStats,
     /// Seam visibility of the atlas (1 = invisible): across view boundaries and chart borders.
     pub seams: SeamReport,
+    /// Restoration of the texels no photograph saw (stage 5), if it ran.
+    pub restore: Option<restore::RestoreReport>,
     /// Of the texels of green triangles (all three vertices seen by one photograph), the
     /// fraction coloured from photographs; the rest are hidden from every photograph at texel
     /// precision (robust) and take vertex colours.
@@ -268,6 +300,22 @@ pub fn texture(
         progress,
     )?;
     stages.push(stage_since("resample+merge", &mut t));
+    let mut resampled = resampled;
+    let restore = match opts.restoration {
+        Restoration::Off => None,
+        Restoration::Synthesis { options, max_hole } => {
+            progress.start("restore", 1);
+            let r = restore::restore_atlas(
+                &mut resampled,
+                &options,
+                max_hole,
+                opts.resample.gutter_fill,
+            )?;
+            progress.finish();
+            stages.push(stage_since("restore", &mut t));
+            Some(r)
+        }
+    };
     let seams = seam_visibility(
         &m,
         &resampled.color,
@@ -294,6 +342,7 @@ pub fn texture(
         gains: binding.gains.clone(),
         resample: resampled.stats.clone(),
         seams,
+        restore,
         completeness_seen: if seen > 0 {
             s.texels_photos as f64 / seen as f64
         } else {

@@ -976,7 +976,12 @@ pub fn resample(
 
 /// Extends chart colours `width` texels into the empty texels around them, ring by ring (each
 /// new texel the mean of its already-coloured 8-neighbours). Returns the texels filled.
-fn extend_into_gutter(color: &mut [f32], source: &mut [u8], n: usize, width: u32) -> u64 {
+pub(crate) fn extend_into_gutter(
+    color: &mut [f32],
+    source: &mut [u8],
+    n: usize,
+    width: u32,
+) -> u64 {
     let empty = TexelSource::Empty as u8;
     let nbrs = |i: usize| {
         let (x, y) = ((i % n) as i64, (i / n) as i64);

@@ -100,40 +100,42 @@ fn init_from_coarser(
         smooth(&mut cd, w2, h2, ch, &cfill, &cdomain, sweeps);
     }
     // Bilinear from the coarse grid (sample centres at 2j + 0.5).
-    data.par_chunks_mut(w * ch).enumerate().for_each(|(y, row)| {
-        for x in 0..w {
-            let i = y * w + x;
-            if !fill[i] {
-                continue;
-            }
-            let fx = ((x as f32 - 0.5) / 2.0).clamp(0.0, (w2 - 1) as f32);
-            let fy = ((y as f32 - 0.5) / 2.0).clamp(0.0, (h2 - 1) as f32);
-            let (x0, y0) = (fx.floor() as usize, fy.floor() as usize);
-            let (x1, y1) = ((x0 + 1).min(w2 - 1), (y0 + 1).min(h2 - 1));
-            let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
-            let mut acc = [0f32; 4];
-            let mut wsum = 0f32;
-            for (xx, yy, wt) in [
-                (x0, y0, (1.0 - tx) * (1.0 - ty)),
-                (x1, y0, tx * (1.0 - ty)),
-                (x0, y1, (1.0 - tx) * ty),
-                (x1, y1, tx * ty),
-            ] {
-                let j = yy * w2 + xx;
-                if cdomain[j] && wt > 0.0 {
-                    for c in 0..ch {
-                        acc[c] += wt * cd[j * ch + c];
+    data.par_chunks_mut(w * ch)
+        .enumerate()
+        .for_each(|(y, row)| {
+            for x in 0..w {
+                let i = y * w + x;
+                if !fill[i] {
+                    continue;
+                }
+                let fx = ((x as f32 - 0.5) / 2.0).clamp(0.0, (w2 - 1) as f32);
+                let fy = ((y as f32 - 0.5) / 2.0).clamp(0.0, (h2 - 1) as f32);
+                let (x0, y0) = (fx.floor() as usize, fy.floor() as usize);
+                let (x1, y1) = ((x0 + 1).min(w2 - 1), (y0 + 1).min(h2 - 1));
+                let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
+                let mut acc = [0f32; 4];
+                let mut wsum = 0f32;
+                for (xx, yy, wt) in [
+                    (x0, y0, (1.0 - tx) * (1.0 - ty)),
+                    (x1, y0, tx * (1.0 - ty)),
+                    (x0, y1, (1.0 - tx) * ty),
+                    (x1, y1, tx * ty),
+                ] {
+                    let j = yy * w2 + xx;
+                    if cdomain[j] && wt > 0.0 {
+                        for c in 0..ch {
+                            acc[c] += wt * cd[j * ch + c];
+                        }
+                        wsum += wt;
                     }
-                    wsum += wt;
+                }
+                if wsum > 0.0 {
+                    for c in 0..ch {
+                        row[x * ch + c] = acc[c] / wsum;
+                    }
                 }
             }
-            if wsum > 0.0 {
-                for c in 0..ch {
-                    row[x * ch + c] = acc[c] / wsum;
-                }
-            }
-        }
-    });
+        });
 }
 
 /// Jacobi sweeps of the diffusion kernel over the fill pixels.
@@ -302,18 +304,20 @@ pub(crate) fn envelope(
 /// In-place box filter of radius `r` (zero outside the image), rows then columns.
 fn box_blur(v: &mut [f32], w: usize, h: usize, r: usize) {
     let mut tmp = vec![0f32; w * h];
-    tmp.par_chunks_mut(w).zip(v.par_chunks(w)).for_each(|(o, s)| {
-        let mut acc: f32 = s[..r.min(w)].iter().sum();
-        for x in 0..w {
-            if x + r < w {
-                acc += s[x + r];
+    tmp.par_chunks_mut(w)
+        .zip(v.par_chunks(w))
+        .for_each(|(o, s)| {
+            let mut acc: f32 = s[..r.min(w)].iter().sum();
+            for x in 0..w {
+                if x + r < w {
+                    acc += s[x + r];
+                }
+                o[x] = acc;
+                if x >= r {
+                    acc -= s[x - r];
+                }
             }
-            o[x] = acc;
-            if x >= r {
-                acc -= s[x - r];
-            }
-        }
-    });
+        });
     // Columns: running sums over rows, one accumulator per column, strips of columns in
     // parallel (row-major reads, no transpose).
     const STRIP: usize = 256;

@@ -176,6 +176,10 @@ impl RestoreOptions {
 pub struct RestoreReport {
     /// Texels filled.
     pub texels: u64,
+    /// Atlas: unseen texels in holes larger than the size limit, left with vertex colours.
+    pub texels_left_large: u64,
+    /// Atlas: unseen texels in charts with no seen texel, left with vertex colours.
+    pub texels_left_unreachable: u64,
     /// Subbands in the low band.
     pub kappa: usize,
     /// Whether kappa was chosen automatically.
@@ -352,6 +356,162 @@ pub fn inpaint(
     }
     report.seconds = wall.elapsed().as_secs_f64();
     Ok((out, report))
+}
+
+/// Stage 5 on the atlas: fills the texels the merge marked as seen by no photograph (green
+/// fallback, blue and red triangles), reading chart texels only, then extends the charts into
+/// the gutter again so that filtering never pulls in the old fill.
+pub fn restore_atlas(
+    res: &mut crate::resample::Resampled,
+    opts: &RestoreOptions,
+    max_hole: usize,
+    gutter_fill: u32,
+) -> Result<RestoreReport> {
+    use crate::resample::TexelSource as S;
+    let n = res.color.width() as usize;
+    let unseen = |s: u8| s == S::GreenFallback as u8 || s == S::Blue as u8 || s == S::Red as u8;
+    let domain: Vec<bool> = res
+        .source
+        .iter()
+        .map(|&s| s == S::Photos as u8 || unseen(s))
+        .collect();
+    // Charts no photograph saw at all have nothing to restore from in 2D: their vertex colours
+    // (continuous across seams, from the 3D neighbourhood) stay. Charts are separate domain
+    // components (gutter lies between them), so "reachable from a seen texel" is "in a chart
+    // with seen texels".
+    let seen: Vec<bool> = res.source.iter().map(|&s| s == S::Photos as u8).collect();
+    let reach = grid_distance(n, &domain, &seen, u32::MAX);
+    let mut mask: Vec<bool> = (0..n * n)
+        .map(|i| unseen(res.source[i]) && reach[i] != u32::MAX)
+        .collect();
+    // Large unseen regions are exemplar synthesis's (stage 6): pixel-by-pixel synthesis of a
+    // region of a million texels is one long sequential walk, and its 2D neighbourhood is the
+    // atlas's, not the surface's. They keep their vertex colours here.
+    let mut left_large = 0u64;
+    if max_hole > 0 {
+        for comp in holes(n, &mask) {
+            if comp.len() > max_hole {
+                left_large += comp.len() as u64;
+                for i in comp {
+                    mask[i] = false;
+                }
+            }
+        }
+    }
+    // Distance to the chart border: restored values fade into the vertex colours there, so
+    // that both sides of a seam still agree.
+    let border: Vec<bool> = (0..n * n)
+        .map(|i| {
+            let (x, y) = (i % n, i / n);
+            domain[i]
+                && (x == 0
+                    || y == 0
+                    || x + 1 == n
+                    || y + 1 == n
+                    || !domain[i - 1]
+                    || !domain[i + 1]
+                    || !domain[i - n]
+                    || !domain[i + n])
+        })
+        .collect();
+    let to_border = grid_distance(n, &domain, &border, BORDER_TAPER);
+    let before = res.color.as_raw().clone();
+    let img = Image {
+        width: n,
+        height: n,
+        channels: 3,
+        data: std::mem::replace(&mut res.color, image::Rgb32FImage::new(0, 0)).into_raw(),
+    };
+    let (out, mut report) = inpaint(&img, &mask, Some(&domain), opts)?;
+    report.texels_left_large = left_large;
+    report.texels_left_unreachable = (0..n * n)
+        .filter(|&i| unseen(res.source[i]) && reach[i] == u32::MAX)
+        .count() as u64;
+    let mut data = out.data;
+    for i in (0..n * n).filter(|&i| mask[i]) {
+        let w = to_border[i].min(BORDER_TAPER) as f32 / BORDER_TAPER as f32;
+        for c in 0..3 {
+            let v = before[i * 3 + c];
+            data[i * 3 + c] = v + w * (data[i * 3 + c] - v);
+        }
+    }
+    for s in res.source.iter_mut() {
+        if *s == S::Gutter as u8 {
+            *s = S::Empty as u8;
+        }
+    }
+    crate::resample::extend_into_gutter(&mut data, &mut res.source, n, gutter_fill);
+    res.color = image::Rgb32FImage::from_raw(n as u32, n as u32, data).expect("n * n * 3 values");
+    Ok(report)
+}
+
+/// Texels over which restored atlas values fade into the vertex colours at a chart border.
+const BORDER_TAPER: u32 = 8;
+
+/// 4-connected components of the mask.
+fn holes(n: usize, mask: &[bool]) -> Vec<Vec<usize>> {
+    let mut seen = vec![false; n * n];
+    let mut out = Vec::new();
+    for s in 0..n * n {
+        if !mask[s] || seen[s] {
+            continue;
+        }
+        let mut comp = vec![s];
+        seen[s] = true;
+        let mut k = 0;
+        while k < comp.len() {
+            let i = comp[k];
+            k += 1;
+            let (x, y) = (i % n, i / n);
+            let nb = [
+                (x > 0).then(|| i - 1),
+                (x + 1 < n).then(|| i + 1),
+                (y > 0).then(|| i - n),
+                (y + 1 < n).then(|| i + n),
+            ];
+            for j in nb.into_iter().flatten() {
+                if mask[j] && !seen[j] {
+                    seen[j] = true;
+                    comp.push(j);
+                }
+            }
+        }
+        out.push(comp);
+    }
+    out
+}
+
+/// 4-connected grid distance within `domain` from the `from` texels, stopping at `limit`
+/// (texels farther away, or unreachable, keep `u32::MAX`).
+fn grid_distance(n: usize, domain: &[bool], from: &[bool], limit: u32) -> Vec<u32> {
+    let mut d = vec![u32::MAX; n * n];
+    let mut front: Vec<usize> = (0..n * n).filter(|&i| from[i] && domain[i]).collect();
+    for &i in &front {
+        d[i] = 0;
+    }
+    let mut step = 0;
+    let mut next = Vec::new();
+    while !front.is_empty() && step < limit {
+        step += 1;
+        next.clear();
+        for &i in &front {
+            let (x, y) = (i % n, i / n);
+            let nb = [
+                (x > 0).then(|| i - 1),
+                (x + 1 < n).then(|| i + 1),
+                (y > 0).then(|| i - n),
+                (y + 1 < n).then(|| i + n),
+            ];
+            for j in nb.into_iter().flatten() {
+                if domain[j] && d[j] == u32::MAX {
+                    d[j] = step;
+                    next.push(j);
+                }
+            }
+        }
+        std::mem::swap(&mut front, &mut next);
+    }
+    d
 }
 
 fn lap(t: &mut Instant) -> f64 {

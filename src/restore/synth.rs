@@ -788,10 +788,20 @@ fn build_sources(
     }
     let mut vectors = Vec::with_capacity(positions.len() * dim);
     let mut v = Vec::with_capacity(dim);
+    // Flat regions give thousands of identical neighbourhoods, which make kd-tree queries
+    // scan whole buckets of ties: keep one texel per distinct vector (the first in scan
+    // order; coherence candidates still reach every texel).
+    let mut seen = std::collections::HashSet::with_capacity(positions.len());
+    let mut kept = Vec::with_capacity(positions.len());
     for &q in &positions {
         source_vector(l, coarse, q as usize, o, ch, &mut v);
-        vectors.extend_from_slice(&v);
+        let key: Vec<u32> = v.iter().map(|x| x.to_bits()).collect();
+        if seen.insert(key) {
+            vectors.extend_from_slice(&v);
+            kept.push(q);
+        }
     }
+    let positions = kept;
     if positions.is_empty() {
         return Sources {
             positions,
