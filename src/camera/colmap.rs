@@ -294,7 +294,7 @@ fn read_images_text(path: &Path) -> Result<BTreeMap<u32, Image>> {
             let (pln, pline) = &lines[i];
             i += 1;
             let p: Vec<&str> = pline.split_whitespace().collect();
-            if p.len() % 3 != 0 {
+            if !p.len().is_multiple_of(3) {
                 return Err(Error::at_line(
                     path,
                     *pln,
@@ -351,7 +351,7 @@ fn read_points_text(path: &Path) -> Result<BTreeMap<u64, Point3D>> {
         }
         let error: f64 = parse_num(path, ln, t[7], "ERROR")?;
         let rest = &t[8..];
-        if rest.len() % 2 != 0 {
+        if !rest.len().is_multiple_of(2) {
             return Err(Error::at_line(
                 path,
                 ln,

@@ -214,7 +214,7 @@ impl Builder {
             }
             let tris: Vec<[u32; 3]> = match mode {
                 Mode::Triangles => {
-                    if idx.len() % 3 != 0 {
+                    if !idx.len().is_multiple_of(3) {
                         self.report.degenerate_faces += 1;
                     }
                     idx.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
@@ -336,7 +336,7 @@ pub fn write_glb(
     let mut views = Vec::new();
     let mut accessors = Vec::new();
     let mut push_view = |bin: &mut Vec<u8>, bytes: &[u8], target: Option<u32>| -> usize {
-        while bin.len() % 4 != 0 {
+        while !bin.len().is_multiple_of(4) {
             bin.push(0);
         }
         let mut v = json!({"buffer": 0, "byteOffset": bin.len(), "byteLength": bytes.len()});
@@ -438,7 +438,7 @@ pub fn write_glb(
         primitive["material"] = json!(0);
     }
     doc["meshes"] = json!([{"primitives": [primitive]}]);
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     doc["buffers"] = json!([{"byteLength": bin.len()}]);
@@ -446,7 +446,7 @@ pub fn write_glb(
     doc["accessors"] = json!(accessors);
 
     let mut js = serde_json::to_vec(&doc).expect("JSON of plain values always serialises");
-    while js.len() % 4 != 0 {
+    while !js.len().is_multiple_of(4) {
         js.push(b' ');
     }
     let total = 12 + 8 + js.len() + 8 + bin.len();

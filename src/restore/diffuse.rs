@@ -189,60 +189,7 @@ fn smooth(
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn fills_a_large_hole_in_a_linear_ramp_with_the_ramp() {
-        // A harmonic function is the fixed point of diffusion: a ramp must come back.
-        let (w, h) = (96, 80);
-        let truth: Vec<f32> = (0..w * h)
-            .map(|i| 0.2 + 0.6 * (i % w) as f32 / w as f32)
-            .collect();
-        let fill: Vec<bool> = (0..w * h)
-            .map(|i| {
-                let (x, y) = ((i % w) as f32 - 48.0, (i / w) as f32 - 40.0);
-                x * x + y * y < 30.0 * 30.0
-            })
-            .collect();
-        let mut img: Vec<f32> = truth
-            .iter()
-            .zip(&fill)
-            .map(|(&v, &f)| if f { 0.0 } else { v })
-            .collect();
-        inpaint(&mut img, w, h, 1, &fill, &vec![true; w * h], 40);
-        let worst = img
-            .iter()
-            .zip(&truth)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0f32, f32::max);
-        assert!(worst < 0.01, "worst error {worst}");
-    }
-
-    #[test]
-    fn never_reads_outside_the_domain() {
-        let (w, h) = (20, 10);
-        // Left half is domain at 0.5 with a hole; right half (outside) holds 100.
-        let domain: Vec<bool> = (0..w * h).map(|i| i % w < 10).collect();
-        let fill: Vec<bool> = (0..w * h)
-            .map(|i| (4..9).contains(&(i % w)) && (3..7).contains(&(i / w)))
-            .collect();
-        let mut img: Vec<f32> = (0..w * h)
-            .map(|i| if domain[i] { 0.5 } else { 100.0 })
-            .collect();
-        inpaint(&mut img, w, h, 1, &fill, &domain, 20);
-        for i in 0..w * h {
-            if fill[i] {
-                assert!((img[i] - 0.5).abs() < 1e-4, "texel {i}: {}", img[i]);
-            }
-            if !domain[i] {
-                assert_eq!(img[i], 100.0);
-            }
-        }
-    }
-}
-
+#[allow(clippy::too_many_arguments)]
 /// Local amplitude of a zero-mean band: the square root of the mean over channels of the
 /// band squared, averaged over known pixels with three passes of a box filter of radius `r`
 /// (close to a Gaussian of sigma 0.9 r), then diffused into the fill pixels like the low band.
@@ -386,4 +333,58 @@ pub(crate) fn masked_blur(
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fills_a_large_hole_in_a_linear_ramp_with_the_ramp() {
+        // A harmonic function is the fixed point of diffusion: a ramp must come back.
+        let (w, h) = (96, 80);
+        let truth: Vec<f32> = (0..w * h)
+            .map(|i| 0.2 + 0.6 * (i % w) as f32 / w as f32)
+            .collect();
+        let fill: Vec<bool> = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f32 - 48.0, (i / w) as f32 - 40.0);
+                x * x + y * y < 30.0 * 30.0
+            })
+            .collect();
+        let mut img: Vec<f32> = truth
+            .iter()
+            .zip(&fill)
+            .map(|(&v, &f)| if f { 0.0 } else { v })
+            .collect();
+        inpaint(&mut img, w, h, 1, &fill, &vec![true; w * h], 40);
+        let worst = img
+            .iter()
+            .zip(&truth)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0f32, f32::max);
+        assert!(worst < 0.01, "worst error {worst}");
+    }
+
+    #[test]
+    fn never_reads_outside_the_domain() {
+        let (w, h) = (20, 10);
+        // Left half is domain at 0.5 with a hole; right half (outside) holds 100.
+        let domain: Vec<bool> = (0..w * h).map(|i| i % w < 10).collect();
+        let fill: Vec<bool> = (0..w * h)
+            .map(|i| (4..9).contains(&(i % w)) && (3..7).contains(&(i / w)))
+            .collect();
+        let mut img: Vec<f32> = (0..w * h)
+            .map(|i| if domain[i] { 0.5 } else { 100.0 })
+            .collect();
+        inpaint(&mut img, w, h, 1, &fill, &domain, 20);
+        for i in 0..w * h {
+            if fill[i] {
+                assert!((img[i] - 0.5).abs() < 1e-4, "texel {i}: {}", img[i]);
+            }
+            if !domain[i] {
+                assert_eq!(img[i], 100.0);
+            }
+        }
+    }
 }

@@ -10,6 +10,9 @@
 //! a window around it (windows that overlap are merged into one cluster with one set of
 //! trees), which keeps synthesis local on a large atlas and makes it global on a small image.
 
+// Pixel loops index several parallel arrays by the same texel: ranges read clearer here.
+#![allow(clippy::needless_range_loop)]
+
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -553,7 +556,7 @@ fn schedule(
     comp: &[usize],
     dist: &[u32],
     slot: &[u32],
-) -> (Vec<(usize, u8)>, Vec<usize>) {
+) -> Schedule {
     // Masked texels within a kernel's reach belong to the same hole (components are built
     // with that reach), so `slot` indexes this hole's own flags.
     let mut avail = vec![false; comp.len()];
@@ -610,6 +613,8 @@ impl SplitMix {
 }
 
 type Fill = (usize, [f32; 4]);
+/// A hole's fill order ((texel, orientation) pairs) and its stalled texels.
+type Schedule = (Vec<(usize, u8)>, Vec<usize>);
 
 fn synthesize_level(
     l: &Level,
@@ -699,7 +704,7 @@ fn synthesize_level(
         .par_iter()
         .enumerate()
         .map(|(ci, (rect, members))| {
-            let scheds: Vec<(Vec<(usize, u8)>, Vec<usize>)> = members
+            let scheds: Vec<Schedule> = members
                 .par_iter()
                 .map(|&k| schedule(l, &comps[k], &dist, &slot))
                 .collect();
@@ -839,7 +844,7 @@ fn fill_hole(
     coarse: &[Level],
     comp: &[usize],
     slot: &[u32],
-    sched: &(Vec<(usize, u8)>, Vec<usize>),
+    sched: &Schedule,
     sources: &[Option<Sources>],
     rect: &Rect,
     i: usize,
