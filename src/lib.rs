@@ -14,10 +14,10 @@
 //! | 2b. gains | [`photometric::normalise`] | [`bind::Binding`] + normals -> the binding with per-photograph gain fields applied (exposure, white balance, shading) |
 //! | 3. resample | [`resample::resample`] | [`mesh::Mesh`] + [`bind::Binding`] + photos -> [`resample::Resampled`] (atlas colour, texel sources, triangle classes); stage 4 calls it per photograph and chart |
 //! | 4. merge | [`merge::merge`] | mesh + [`bind::Binding`] + photos -> [`resample::Resampled`] (photographs resampled and combined by a chart-aware multiresolution spline; texels no photograph's mask covers marked) |
-//! | 5. restore *(planned)* | `restore::inpaint(&Texture, &Mask, &RestoreOptions)` | -> `Texture` (every texel filled) |
+//! | 5. restore | [`restore::restore_atlas`] ([`restore::inpaint`] for any image) | [`resample::Resampled`] + [`restore::RestoreOptions`] -> the atlas with unseen texels restored (DCT split, diffusion of the low band, synthesis of the high band), [`restore::RestoreReport`] |
 //! | 6. synthesize *(planned)* | `synth::fill_surface(&Mesh, &Atlas, &Texture, ..)` | -> `Texture` (large unseen regions) |
 //! | eval | [`eval::evaluate`] | textured [`mesh::Mesh`] + held-out [`scene::Photo`]s -> [`eval::EvalReport`] (PSNR, SSIM, 1-NCC, completeness) |
-//! | all | [`pipeline::texture`] | stages 1-3 with one [`pipeline::TextureOptions`] -> [`pipeline::Textured`] + [`pipeline::TextureReport`] |
+//! | all | [`pipeline::texture`] | stages 1-5 with one [`pipeline::TextureOptions`] -> [`pipeline::Textured`] + [`pipeline::TextureReport`] |
 //! | out | [`io::write_mesh`] | [`mesh::Mesh`] + [`io::EncodedTexture`] -> OBJ/MTL/PNG, PLY, GLB |
 //!
 //! Conventions: COLMAP's camera conventions throughout ([`camera`]); texture coordinates with

@@ -31,7 +31,10 @@ fn read_pgm(p: &Path) -> (Vec<f64>, usize, usize) {
     }
     assert_eq!(fields[0], "P5");
     let (w, h): (usize, usize) = (fields[1].parse().unwrap(), fields[2].parse().unwrap());
-    let data = b[i + 1..i + 1 + w * h].iter().map(|&v| v as f64 / 255.0).collect();
+    let data = b[i + 1..i + 1 + w * h]
+        .iter()
+        .map(|&v| v as f64 / 255.0)
+        .collect();
     (data, w, h)
 }
 
@@ -41,7 +44,11 @@ fn read_grey(p: &Path) -> (Vec<f64>, usize, usize) {
     }
     let img = image::open(p).unwrap().to_luma8();
     let (w, h) = (img.width() as usize, img.height() as usize);
-    (img.into_raw().iter().map(|&v| v as f64 / 255.0).collect(), w, h)
+    (
+        img.into_raw().iter().map(|&v| v as f64 / 255.0).collect(),
+        w,
+        h,
+    )
 }
 
 /// OpenCV's GaussianBlur with sigma derived from the size (fixed [1 4 6 4 1]/16 for 5x5),
@@ -194,8 +201,14 @@ fn restoration_keeps_detail_and_the_low_band_against_opencv_telea() {
     }
     eprint!("{report}");
     // Measured: 52/54 and 53/54 (docs/benchmarks.md); allow one more miss for float noise.
-    assert!(detail_ok >= 51, "detail ratio within 0.8-1.2 in {detail_ok}/54\n{report}");
-    assert!(lf_ok >= 52, "low-frequency PSNR within 1 dB of TELEA in {lf_ok}/54\n{report}");
+    assert!(
+        detail_ok >= 51,
+        "detail ratio within 0.8-1.2 in {detail_ok}/54\n{report}"
+    );
+    assert!(
+        lf_ok >= 52,
+        "low-frequency PSNR within 1 dB of TELEA in {lf_ok}/54\n{report}"
+    );
     assert!(
         ours_psnr > telea_psnr,
         "mean PSNR {:.2} vs TELEA {:.2}",
@@ -210,13 +223,14 @@ fn restoration_is_deterministic_and_never_touches_known_pixels() {
         return;
     };
     let (tex, w, h) = read_grey(&p);
-    let mask: Vec<bool> = image::open(common::root().join("calib/opencv/inpaint/blobs15_512x512.png"))
-        .unwrap()
-        .to_luma8()
-        .into_raw()
-        .iter()
-        .map(|&v| v > 127)
-        .collect();
+    let mask: Vec<bool> =
+        image::open(common::root().join("calib/opencv/inpaint/blobs15_512x512.png"))
+            .unwrap()
+            .to_luma8()
+            .into_raw()
+            .iter()
+            .map(|&v| v > 127)
+            .collect();
     let img = Image {
         width: w,
         height: h,

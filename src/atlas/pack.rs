@@ -207,7 +207,11 @@ fn footprint(
 fn mask(foot: &[bool], w: usize, h: usize, offset: Vector2<f64>, rot: u8, gutter: usize) -> Mask {
     // Box coordinates q of a chart point p, turned: rotate(p) + offset_r; and texel (x, y) of the
     // turned grid reads texel src(x, y) of the original.
-    let (rw, rh) = if rot.is_multiple_of(2) { (w, h) } else { (h, w) };
+    let (rw, rh) = if rot.is_multiple_of(2) {
+        (w, h)
+    } else {
+        (h, w)
+    };
     let (wf, hf) = (w as f64, h as f64);
     let off = match rot % 4 {
         0 => offset,

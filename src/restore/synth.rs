@@ -551,12 +551,7 @@ fn distances(l: &Level) -> Vec<u32> {
 
 /// A hole's fill order: (texel, orientation) in the order texels become fillable, and the
 /// texels that never do.
-fn schedule(
-    l: &Level,
-    comp: &[usize],
-    dist: &[u32],
-    slot: &[u32],
-) -> Schedule {
+fn schedule(l: &Level, comp: &[usize], dist: &[u32], slot: &[u32]) -> Schedule {
     // Masked texels within a kernel's reach belong to the same hole (components are built
     // with that reach), so `slot` indexes this hole's own flags.
     let mut avail = vec![false; comp.len()];
@@ -800,7 +795,10 @@ fn build_sources(
     let mut kept = Vec::with_capacity(positions.len());
     for &q in &positions {
         source_vector(l, coarse, q as usize, o, ch, &mut v);
-        let key: Vec<u32> = v.iter().map(|x| x.to_bits()).collect();
+        // FNV-1a of the bits: a collision merely drops one more source.
+        let key = v.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, x| {
+            (h ^ x.to_bits() as u64).wrapping_mul(0x0000_0100_0000_01B3)
+        });
         if seen.insert(key) {
             vectors.extend_from_slice(&v);
             kept.push(q);
