@@ -179,7 +179,7 @@ pub(crate) struct Params {
 pub struct LevelStats {
     /// Level (0 = full resolution).
     pub level: usize,
-    /// Size of the level.
+    /// Size of the level (on an atlas: of the first crop).
     pub width: usize,
     /// Size of the level.
     pub height: usize,
