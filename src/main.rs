@@ -219,8 +219,12 @@ enum Command {
         no_contrast_normalisation: bool,
         /// How much of the hole's local mean comes from diffusion instead of synthesis, 0
         /// (the paper) to 1 (closest to the truth at coarse scales, flatter to the eye).
-        #[arg(long, default_value_t = 0.5)]
+        #[arg(long, default_value_t = 0.6)]
         mean_from_diffusion: f32,
+        /// Keep each hole's synthesised detail as it comes, without matching its energy to
+        /// the surroundings' (the paper's way; joins between copied pieces add edges).
+        #[arg(long)]
+        no_detail_match: bool,
         /// Print the report (kappa, per-level counts, timings) as JSON on stdout.
         #[arg(long)]
         json: bool,
@@ -638,6 +642,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             margin,
             no_contrast_normalisation,
             mean_from_diffusion,
+            no_detail_match,
             json,
         } => {
             let opts = scantex::restore::RestoreOptions {
@@ -650,6 +655,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
                 margin,
                 normalise_contrast: !no_contrast_normalisation,
                 mean_from_diffusion,
+                match_detail: !no_detail_match,
                 ..Default::default()
             };
             let (img, depth) = scantex::io::image::read_planar(&image)?;
