@@ -543,24 +543,34 @@ pub fn restore_atlas(
     // (continuous across seams, from the 3D neighbourhood) stay. Charts are separate domain
     // components (gutter lies between them), so "reachable from a seen texel" is "in a chart
     // with seen texels".
-    let seen: Vec<bool> = res.source.iter().map(|&s| s == S::Photos as u8).collect();
-    let reach = grid_distance(n, &domain, &seen, u32::MAX);
+    let reach = {
+        let seen: Vec<bool> = res.source.iter().map(|&s| s == S::Photos as u8).collect();
+        grid_distance(n, &domain, &seen, None)
+    };
     let mut mask: Vec<bool> = (0..n * n)
-        .map(|i| unseen(res.source[i]) && reach[i] != u32::MAX)
+        .map(|i| unseen(res.source[i]) && reach[i] != u8::MAX)
         .collect();
+    let texels_left_unreachable = (0..n * n)
+        .filter(|&i| unseen(res.source[i]) && reach[i] == u8::MAX)
+        .count() as u64;
+    drop(reach);
     // Large unseen regions are exemplar synthesis's (stage 6): pixel-by-pixel synthesis of a
     // region of a million texels is one long sequential walk, and its 2D neighbourhood is the
     // atlas's, not the surface's. They keep their vertex colours here.
     let mut left_large = 0u64;
+    let mut comps = holes(n, n, &mask);
     if max_hole > 0 {
-        for comp in holes(n, n, &mask) {
+        comps.retain(|comp| {
             if comp.len() > max_hole {
                 left_large += comp.len() as u64;
-                for i in comp {
+                for &i in comp {
                     mask[i] = false;
                 }
+                false
+            } else {
+                true
             }
-        }
+        });
     }
     // Distance to the chart border: restored values fade into the vertex colours there, so
     // that both sides of a seam still agree.
@@ -578,49 +588,69 @@ pub fn restore_atlas(
                     || !domain[i + n])
         })
         .collect();
-    let to_border = grid_distance(n, &domain, &border, BORDER_TAPER);
-    let before = res.color.as_raw().clone();
+    let to_border = grid_distance(n, &domain, &border, Some(BORDER_TAPER as u8));
+    drop(border);
     let mut data = std::mem::replace(&mut res.color, image::Rgb32FImage::new(0, 0)).into_raw();
-    // Each group of nearby holes is restored in its own crop (the holes' bounding boxes
-    // widened by the source margin, overlapping crops merged), so the cost follows the holes,
-    // not the atlas: the split, envelope and pyramid of a whole 4096 atlas took 12 s for 2264
-    // texels. The low band and kappa become local to the crop.
-    let crops = crops(n, &mask, opts.margin.max(16) + 8);
+    // Holes are restored in crops (a group of nearby holes' bounding boxes widened by the
+    // source margin), so the cost follows the holes, not the atlas: the split, envelope and
+    // pyramid of a whole 4096 atlas took 12 s for 2264 texels. Crops stay under
+    // `MAX_CROP_AREA` (one crop of a whole 8192 atlas took 59 s and 10 GB); a crop restores
+    // its own holes only and reads no other hole's texels, so crops are independent and run
+    // in parallel on the atlas as it came from the merge.
+    let crops = crops(n, &comps, opts.margin.max(16) + 8, MAX_CROP_AREA);
     let wall = Instant::now();
+    let results: Vec<(Vec<Fill>, RestoreReport)> = crops
+        .par_iter()
+        .map(|crop| {
+            let r = crop.rect;
+            let (cw, chh) = (r.2 - r.0, r.3 - r.1);
+            let idx = |x: usize, y: usize| (r.1 + y) * n + r.0 + x;
+            let mut cimg = Vec::with_capacity(cw * chh * 3);
+            let mut cdom = Vec::with_capacity(cw * chh);
+            for y in 0..chh {
+                for x in 0..cw {
+                    let i = idx(x, y);
+                    cimg.extend_from_slice(&data[i * 3..i * 3 + 3]);
+                    cdom.push(domain[i] && !mask[i]);
+                }
+            }
+            let mut cmask = vec![false; cw * chh];
+            for &k in &crop.holes {
+                for &i in &comps[k] {
+                    let j = (i / n - r.1) * cw + i % n - r.0;
+                    cmask[j] = true;
+                    cdom[j] = true;
+                }
+            }
+            let img = Image {
+                width: cw,
+                height: chh,
+                channels: 3,
+                data: cimg,
+            };
+            let (out, rep) = inpaint(&img, &cmask, Some(&cdom), opts)?;
+            let fills = (0..cw * chh)
+                .filter(|&j| cmask[j])
+                .map(|j| {
+                    let c = [out.data[j * 3], out.data[j * 3 + 1], out.data[j * 3 + 2]];
+                    (idx(j % cw, j / cw), c)
+                })
+                .collect();
+            Ok((fills, rep))
+        })
+        .collect::<Result<_>>()?;
     let mut report = RestoreReport {
         method: opts.method,
         windows: crops.len(),
         ..Default::default()
     };
     let mut kappas = Vec::new();
-    for r in &crops {
-        let (cw, chh) = (r.2 - r.0, r.3 - r.1);
-        let idx = |x: usize, y: usize| (r.1 + y) * n + r.0 + x;
-        let mut cimg = Vec::with_capacity(cw * chh * 3);
-        let mut cmask = Vec::with_capacity(cw * chh);
-        let mut cdom = Vec::with_capacity(cw * chh);
-        for y in 0..chh {
-            for x in 0..cw {
-                let i = idx(x, y);
-                cimg.extend_from_slice(&data[i * 3..i * 3 + 3]);
-                cmask.push(mask[i]);
-                cdom.push(domain[i]);
-            }
-        }
-        let img = Image {
-            width: cw,
-            height: chh,
-            channels: 3,
-            data: cimg,
-        };
-        let (out, rep) = inpaint(&img, &cmask, Some(&cdom), opts)?;
-        for y in 0..chh {
-            for x in 0..cw {
-                if cmask[y * cw + x] {
-                    let i = idx(x, y);
-                    let j = y * cw + x;
-                    data[i * 3..i * 3 + 3].copy_from_slice(&out.data[j * 3..j * 3 + 3]);
-                }
+    for (fills, rep) in results {
+        for (i, c) in fills {
+            let w = f32::from(to_border[i].min(BORDER_TAPER as u8)) / BORDER_TAPER as f32;
+            for (k, &v) in c.iter().enumerate() {
+                let before = data[i * 3 + k];
+                data[i * 3 + k] = before + w * (v - before);
             }
         }
         report.texels += rep.texels;
@@ -653,16 +683,7 @@ pub fn restore_atlas(
     report.kappa_auto = opts.kappa == Kappa::Auto;
     report.seconds = wall.elapsed().as_secs_f64();
     report.texels_left_large = left_large;
-    report.texels_left_unreachable = (0..n * n)
-        .filter(|&i| unseen(res.source[i]) && reach[i] == u32::MAX)
-        .count() as u64;
-    for i in (0..n * n).filter(|&i| mask[i]) {
-        let w = to_border[i].min(BORDER_TAPER) as f32 / BORDER_TAPER as f32;
-        for c in 0..3 {
-            let v = before[i * 3 + c];
-            data[i * 3 + c] = v + w * (data[i * 3 + c] - v);
-        }
-    }
+    report.texels_left_unreachable = texels_left_unreachable;
     for s in res.source.iter_mut() {
         if *s == S::Gutter as u8 {
             *s = S::Empty as u8;
@@ -676,11 +697,26 @@ pub fn restore_atlas(
 /// Texels over which restored atlas values fade into the vertex colours at a chart border.
 const BORDER_TAPER: u32 = 8;
 
-/// Crops (x0, y0, x1, y1) covering every hole widened by `margin`, overlapping crops merged.
-fn crops(n: usize, mask: &[bool], margin: usize) -> Vec<(usize, usize, usize, usize)> {
-    let mut rects: Vec<(usize, usize, usize, usize)> = holes(n, n, mask)
+/// A restored atlas texel: its index and colour.
+type Fill = (usize, [f32; 3]);
+
+/// Largest crop built by merging holes' windows, texels (a single hole's window may exceed
+/// it).
+const MAX_CROP_AREA: usize = 1 << 20;
+
+/// A rectangle of the atlas (x0, y0, x1, y1) and the holes (indices) it restores.
+struct Crop {
+    rect: (usize, usize, usize, usize),
+    holes: Vec<usize>,
+}
+
+/// Crops covering every hole of `comps` widened by `margin`; overlapping crops are merged
+/// while the merged one stays within `max_area`.
+fn crops(n: usize, comps: &[Vec<usize>], margin: usize, max_area: usize) -> Vec<Crop> {
+    let mut crops: Vec<Crop> = comps
         .iter()
-        .map(|c| {
+        .enumerate()
+        .map(|(k, c)| {
             let (mut x0, mut y0, mut x1, mut y1) = (n, n, 0, 0);
             for &i in c {
                 let (x, y) = (i % n, i / n);
@@ -689,36 +725,61 @@ fn crops(n: usize, mask: &[bool], margin: usize) -> Vec<(usize, usize, usize, us
                 x1 = x1.max(x + 1);
                 y1 = y1.max(y + 1);
             }
-            (
-                x0.saturating_sub(margin),
-                y0.saturating_sub(margin),
-                (x1 + margin).min(n),
-                (y1 + margin).min(n),
-            )
+            Crop {
+                rect: (
+                    x0.saturating_sub(margin),
+                    y0.saturating_sub(margin),
+                    (x1 + margin).min(n),
+                    (y1 + margin).min(n),
+                ),
+                holes: vec![k],
+            }
         })
         .collect();
-    // Merge until no two overlap (few crops: quadratic passes are cheap).
+    crops.sort_unstable_by_key(|c| (c.rect.1, c.rect.0, c.holes[0]));
+    let area = |r: (usize, usize, usize, usize)| (r.2 - r.0) * (r.3 - r.1);
+    // Merge until no merge is possible (quadratic passes over few crops are cheap).
     loop {
         let mut merged = false;
-        let mut out: Vec<(usize, usize, usize, usize)> = Vec::with_capacity(rects.len());
-        for r in rects {
-            if let Some(o) = out
-                .iter_mut()
-                .find(|o| r.0 < o.2 && o.0 < r.2 && r.1 < o.3 && o.1 < r.3)
-            {
-                *o = (o.0.min(r.0), o.1.min(r.1), o.2.max(r.2), o.3.max(r.3));
-                merged = true;
-            } else {
-                out.push(r);
+        let mut out: Vec<Crop> = Vec::with_capacity(crops.len());
+        for c in crops {
+            let r = c.rect;
+            let target = out.iter_mut().find(|o| {
+                let u = (
+                    o.rect.0.min(r.0),
+                    o.rect.1.min(r.1),
+                    o.rect.2.max(r.2),
+                    o.rect.3.max(r.3),
+                );
+                r.0 < o.rect.2
+                    && o.rect.0 < r.2
+                    && r.1 < o.rect.3
+                    && o.rect.1 < r.3
+                    && area(u) <= max_area
+            });
+            match target {
+                Some(o) => {
+                    o.rect = (
+                        o.rect.0.min(r.0),
+                        o.rect.1.min(r.1),
+                        o.rect.2.max(r.2),
+                        o.rect.3.max(r.3),
+                    );
+                    o.holes.extend(c.holes);
+                    merged = true;
+                }
+                None => out.push(c),
             }
         }
-        rects = out;
+        crops = out;
         if !merged {
             break;
         }
     }
-    rects.sort_unstable();
-    rects
+    for c in &mut crops {
+        c.holes.sort_unstable();
+    }
+    crops
 }
 
 /// 4-connected components of the `w` x `h` mask.
@@ -755,18 +816,21 @@ fn holes(w: usize, h: usize, mask: &[bool]) -> Vec<Vec<usize>> {
 }
 
 /// 4-connected grid distance within `domain` from the `from` texels, stopping at `limit`
-/// (texels farther away, or unreachable, keep `u32::MAX`).
-fn grid_distance(n: usize, domain: &[bool], from: &[bool], limit: u32) -> Vec<u32> {
-    let mut d = vec![u32::MAX; n * n];
+/// (texels farther away, or unreachable, keep `u8::MAX`); without a limit every reachable
+/// texel is reached, distances saturating at 254. One byte per texel: at 8192 the atlas has
+/// 67M.
+fn grid_distance(n: usize, domain: &[bool], from: &[bool], limit: Option<u8>) -> Vec<u8> {
+    let mut d = vec![u8::MAX; n * n];
     let mut front: Vec<usize> = (0..n * n).filter(|&i| from[i] && domain[i]).collect();
     for &i in &front {
         d[i] = 0;
     }
-    let mut step = 0;
+    let mut step = 0u32;
     let mut next = Vec::new();
-    while !front.is_empty() && step < limit {
+    while !front.is_empty() && limit.is_none_or(|l| step < u32::from(l)) {
         step += 1;
         next.clear();
+        let v = step.min(u32::from(u8::MAX) - 1) as u8;
         for &i in &front {
             let (x, y) = (i % n, i / n);
             let nb = [
@@ -776,8 +840,8 @@ fn grid_distance(n: usize, domain: &[bool], from: &[bool], limit: u32) -> Vec<u3
                 (y + 1 < n).then(|| i + n),
             ];
             for j in nb.into_iter().flatten() {
-                if domain[j] && d[j] == u32::MAX {
-                    d[j] = step;
+                if domain[j] && d[j] == u8::MAX {
+                    d[j] = v;
                     next.push(j);
                 }
             }
