@@ -153,13 +153,7 @@ fn restoration_keeps_detail_and_the_low_band_against_opencv_telea() {
         let mpath = common::root()
             .join("calib/opencv/inpaint")
             .join(c["mask_file"].as_str().unwrap());
-        let mask: Vec<bool> = image::open(&mpath)
-            .unwrap()
-            .to_luma8()
-            .into_raw()
-            .iter()
-            .map(|&v| v > 127)
-            .collect();
+        let (mask, _, _) = scantex::io::image::read_mask(&mpath).unwrap();
         // Both tools see the same 8-bit input; the result is compared as 8-bit.
         let input = Image {
             width: w,
@@ -224,14 +218,10 @@ fn restoration_is_deterministic_and_never_touches_known_pixels() {
         return;
     };
     let (tex, w, h) = read_grey(&p);
-    let mask: Vec<bool> =
-        image::open(common::root().join("calib/opencv/inpaint/blobs15_512x512.png"))
-            .unwrap()
-            .to_luma8()
-            .into_raw()
-            .iter()
-            .map(|&v| v > 127)
-            .collect();
+    let (mask, _, _) = scantex::io::image::read_mask(
+        &common::root().join("calib/opencv/inpaint/blobs15_512x512.png"),
+    )
+    .unwrap();
     let img = Image {
         width: w,
         height: h,

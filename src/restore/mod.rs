@@ -394,44 +394,16 @@ fn match_detail(
     fill: &[bool],
     domain: &[bool],
 ) -> f64 {
-    let comps = holes(w, h, fill);
-    if comps.is_empty() {
+    let hole: Vec<usize> = (0..w * h).filter(|&i| fill[i]).collect();
+    if hole.is_empty() {
         return 1.0;
     }
-    // Each known texel near a hole belongs to the ring of the hole that reaches it first
-    // (breadth first, so the nearest one).
-    let mut label = vec![u32::MAX; w * h];
-    let mut front: Vec<usize> = Vec::new();
-    for (k, c) in comps.iter().enumerate() {
-        for &i in c {
-            label[i] = k as u32;
-            front.push(i);
-        }
-    }
-    let mut rings: Vec<Vec<usize>> = vec![Vec::new(); comps.len()];
-    let mut next = Vec::new();
-    for step in 1..=DETAIL_RING.1 {
-        next.clear();
-        for &i in &front {
-            let (x, y) = (i % w, i / w);
-            let nb = [
-                (x > 0).then(|| i - 1),
-                (x + 1 < w).then(|| i + 1),
-                (y > 0).then(|| i - w),
-                (y + 1 < h).then(|| i + w),
-            ];
-            for j in nb.into_iter().flatten() {
-                if domain[j] && label[j] == u32::MAX {
-                    label[j] = label[i];
-                    next.push(j);
-                    if step >= DETAIL_RING.0 {
-                        rings[label[i] as usize].push(j);
-                    }
-                }
-            }
-        }
-        std::mem::swap(&mut front, &mut next);
-    }
+    let ring: Vec<usize> = {
+        let d = grid_distance(w, h, domain, fill, Some(DETAIL_RING.1 as u8));
+        (0..w * h)
+            .filter(|&i| !fill[i] && d[i] >= DETAIL_RING.0 as u8 && d[i] != u8::MAX)
+            .collect()
+    };
     // Three box passes of radius 1 = the binomial-like 7-tap kernel per axis, normalised over
     // the domain so gutter never counts.
     const K: [f32; 7] = [1.0, 3.0, 6.0, 7.0, 6.0, 3.0, 1.0];
@@ -469,53 +441,50 @@ fn match_detail(
             }
         })
     };
-    let energy = |data: &[f32], texels: &[usize]| -> (f64, usize) {
-        let e = texels
-            .iter()
-            .map(|&i| {
-                highpass(data, i)
-                    .iter()
-                    .map(|&d| f64::from(d * d))
-                    .sum::<f64>()
+    // Mean squared high-pass; summed per fixed chunk, then in order, so the same bytes come
+    // out whatever the threads do.
+    let energy = |data: &[f32], texels: &[usize]| -> f64 {
+        let parts: Vec<f64> = texels
+            .par_chunks(4096)
+            .map(|c| {
+                c.iter()
+                    .map(|&i| {
+                        highpass(data, i)
+                            .iter()
+                            .map(|&d| f64::from(d * d))
+                            .sum::<f64>()
+                    })
+                    .sum()
             })
-            .sum();
-        (e, texels.len())
+            .collect();
+        parts.iter().sum::<f64>() / texels.len().max(1) as f64
     };
     // What is scaled is the hole's high-pass as the energy sees it, so the hole keeps its
     // local mean (its shading) and a one-texel hole is not left out.
-    let fine: Vec<Vec<[f32; 3]>> = comps
-        .par_iter()
-        .map(|c| c.iter().map(|&i| highpass(out, i)).collect())
-        .collect();
+    let fine: Vec<[f32; 3]> = hole.par_iter().map(|&i| highpass(out, i)).collect();
     // One scale for all the holes: the energy of a hole's surroundings is a noisy estimate
     // of what the hole should hold when the texture's features are as large as the hole
     // (per-hole scales took sawtooth stripes down to 0.7 of their energy).
     let mut total = 1f64;
+    // The ring is known texels, unchanged by the scaling: measured once. Too few texels
+    // around (holes filling their chart) say nothing reliable.
+    if ring.len() < 16 {
+        return total;
+    }
+    let er = energy(out, &ring);
     // Two passes: the blur at a hole's edge mixes known and scaled texels, so one scale
     // undershoots a little.
-    // The rings are known texels, unchanged by the scaling: measured once.
-    let (er, nr) = rings
-        .par_iter()
-        .map(|r| energy(out, r))
-        .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
     for _ in 0..2 {
-        let (ei, ni) = comps
-            .par_iter()
-            .map(|c| energy(out, c))
-            .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
-        // Too few texels around (holes filling their chart) say nothing reliable.
-        if nr < 16 || ni == 0 || ei <= 0.0 {
+        let ei = energy(out, &hole);
+        if ei <= 0.0 {
             break;
         }
-        let f = ((er / nr as f64) / (ei / ni as f64)).sqrt();
-        let new = (f * total).clamp(DETAIL_SCALE.0, DETAIL_SCALE.1);
+        let new = ((er / ei).sqrt() * total).clamp(DETAIL_SCALE.0, DETAIL_SCALE.1);
         let step = (new - total) as f32;
         total = new;
-        for (c, r) in comps.iter().zip(&fine) {
-            for (&i, d) in c.iter().zip(r) {
-                for j in 0..ch {
-                    out[i * ch + j] += step * d[j];
-                }
+        for (&i, d) in hole.iter().zip(&fine) {
+            for j in 0..ch {
+                out[i * ch + j] += step * d[j];
             }
         }
     }
@@ -545,7 +514,7 @@ pub fn restore_atlas(
     // with seen texels".
     let reach = {
         let seen: Vec<bool> = res.source.iter().map(|&s| s == S::Photos as u8).collect();
-        grid_distance(n, &domain, &seen, None)
+        grid_distance(n, n, &domain, &seen, None)
     };
     let mut mask: Vec<bool> = (0..n * n)
         .map(|i| unseen(res.source[i]) && reach[i] != u8::MAX)
@@ -588,7 +557,7 @@ pub fn restore_atlas(
                     || !domain[i + n])
         })
         .collect();
-    let to_border = grid_distance(n, &domain, &border, Some(BORDER_TAPER as u8));
+    let to_border = grid_distance(n, n, &domain, &border, Some(BORDER_TAPER as u8));
     drop(border);
     let mut data = std::mem::replace(&mut res.color, image::Rgb32FImage::new(0, 0)).into_raw();
     // Holes are restored in crops (a group of nearby holes' bounding boxes widened by the
@@ -782,6 +751,19 @@ fn crops(n: usize, comps: &[Vec<usize>], margin: usize, max_area: usize) -> Vec<
     crops
 }
 
+/// The 4-neighbours of texel `i` of a `w` x `h` grid.
+fn neighbours4(i: usize, w: usize, h: usize) -> impl Iterator<Item = usize> {
+    let (x, y) = (i % w, i / w);
+    [
+        (x > 0).then(|| i - 1),
+        (x + 1 < w).then(|| i + 1),
+        (y > 0).then(|| i - w),
+        (y + 1 < h).then(|| i + w),
+    ]
+    .into_iter()
+    .flatten()
+}
+
 /// 4-connected components of the `w` x `h` mask.
 fn holes(w: usize, h: usize, mask: &[bool]) -> Vec<Vec<usize>> {
     let mut seen = vec![false; w * h];
@@ -796,14 +778,7 @@ fn holes(w: usize, h: usize, mask: &[bool]) -> Vec<Vec<usize>> {
         while k < comp.len() {
             let i = comp[k];
             k += 1;
-            let (x, y) = (i % w, i / w);
-            let nb = [
-                (x > 0).then(|| i - 1),
-                (x + 1 < w).then(|| i + 1),
-                (y > 0).then(|| i - w),
-                (y + 1 < h).then(|| i + w),
-            ];
-            for j in nb.into_iter().flatten() {
+            for j in neighbours4(i, w, h) {
                 if mask[j] && !seen[j] {
                     seen[j] = true;
                     comp.push(j);
@@ -815,13 +790,13 @@ fn holes(w: usize, h: usize, mask: &[bool]) -> Vec<Vec<usize>> {
     out
 }
 
-/// 4-connected grid distance within `domain` from the `from` texels, stopping at `limit`
-/// (texels farther away, or unreachable, keep `u8::MAX`); without a limit every reachable
-/// texel is reached, distances saturating at 254. One byte per texel: at 8192 the atlas has
-/// 67M.
-fn grid_distance(n: usize, domain: &[bool], from: &[bool], limit: Option<u8>) -> Vec<u8> {
-    let mut d = vec![u8::MAX; n * n];
-    let mut front: Vec<usize> = (0..n * n).filter(|&i| from[i] && domain[i]).collect();
+/// 4-connected grid distance on a `w` x `h` grid within `domain` from the `from` texels,
+/// stopping at `limit` (texels farther away, or unreachable, keep `u8::MAX`); without a limit
+/// every reachable texel is reached, distances saturating at 254. One byte per texel: at 8192
+/// the atlas has 67M.
+fn grid_distance(w: usize, h: usize, domain: &[bool], from: &[bool], limit: Option<u8>) -> Vec<u8> {
+    let mut d = vec![u8::MAX; w * h];
+    let mut front: Vec<usize> = (0..w * h).filter(|&i| from[i] && domain[i]).collect();
     for &i in &front {
         d[i] = 0;
     }
@@ -832,14 +807,7 @@ fn grid_distance(n: usize, domain: &[bool], from: &[bool], limit: Option<u8>) ->
         next.clear();
         let v = step.min(u32::from(u8::MAX) - 1) as u8;
         for &i in &front {
-            let (x, y) = (i % n, i / n);
-            let nb = [
-                (x > 0).then(|| i - 1),
-                (x + 1 < n).then(|| i + 1),
-                (y > 0).then(|| i - n),
-                (y + 1 < n).then(|| i + n),
-            ];
-            for j in nb.into_iter().flatten() {
+            for j in neighbours4(i, w, h) {
                 if domain[j] && d[j] == u8::MAX {
                     d[j] = v;
                     next.push(j);
