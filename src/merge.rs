@@ -234,37 +234,324 @@ fn ring_valid(mesh: &Mesh, b: &Binding) -> Vec<Vec<u32>> {
         .collect()
 }
 
-/// Side of the tiles [`ChartAcc::add`] splits large layers into, texels.
-const TILE: usize = 1024;
+/// Chart texels (of bounding rectangles) collapsed in one parallel batch: bounds the
+/// collapsed images held before they are copied into the atlas.
+const COLLAPSE_BATCH: usize = 1 << 22;
 
-/// A tile: its region (x0, y0, x1, y1) and its core in region coordinates.
-type Tile = ((usize, usize, usize, usize), (usize, usize, usize, usize));
+/// Below this a sum of weights counts as nothing.
+const EPS: f32 = 1e-12;
 
-/// The tiles [`ChartAcc::add`] splits a `w` x `h` layer into: cores of `tile` texels (rounded
-/// to the coarsest grid) covering the layer once, regions widened by 8 coarsest-level texels,
-/// beyond the reach of the reductions and expansions. One tile when the layer is small.
-fn tiles(w: usize, h: usize, levels: usize, tile: usize) -> Vec<Tile> {
-    let step = 1usize << levels;
-    let tile = tile.div_ceil(step) * step;
-    let margin = 8 * step;
-    if w <= tile + 2 * margin && h <= tile + 2 * margin {
-        return vec![((0, 0, w, h), (0, 0, w, h))];
+/// The texels of the next coarser level a texel `x` of a level `n` texels wide reaches in a
+/// reduction, with their kernel weights (reflect-101 at the chart's borders, as
+/// [`pyramid::reduce`]): `(index, weight)` pairs, `count` of them used.
+#[inline]
+fn down_taps(x: usize, n: usize, k: &[f32; 5]) -> ([usize; 6], [f32; 6], usize) {
+    let mut idx = [0usize; 6];
+    let mut wt = [0f32; 6];
+    let j = x / 2;
+    if x >= 3 && x + 4 <= n {
+        // Interior: source 2X + t - 2 = x.
+        if x.is_multiple_of(2) {
+            idx[..3].copy_from_slice(&[j - 1, j, j + 1]);
+            wt[..3].copy_from_slice(&[k[4], k[2], k[0]]);
+            return (idx, wt, 3);
+        }
+        idx[..2].copy_from_slice(&[j, j + 1]);
+        wt[..2].copy_from_slice(&[k[3], k[1]]);
+        return (idx, wt, 2);
     }
-    let mut out = Vec::new();
-    for ty in (0..h).step_by(tile) {
-        for tx in (0..w).step_by(tile) {
-            let (rx0, ry0) = (tx.saturating_sub(margin), ty.saturating_sub(margin));
-            let (rx1, ry1) = ((tx + tile + margin).min(w), (ty + tile + margin).min(h));
-            let core = (
-                tx - rx0,
-                ty - ry0,
-                (tx + tile).min(w) - rx0,
-                (ty + tile).min(h) - ry0,
-            );
-            out.push(((rx0, ry0, rx1, ry1), core));
+    // Near a border the reflected taps reach `x` too.
+    let mut c = 0;
+    for big in j.saturating_sub(3)..(j + 4).min(n.div_ceil(2)) {
+        let s: f32 = (0..5)
+            .filter(|&t| pyramid::reflect101(2 * big as isize + t as isize - 2, n) == x)
+            .map(|t| k[t])
+            .sum();
+        if s > 0.0 && c < 6 {
+            idx[c] = big;
+            wt[c] = s;
+            c += 1;
         }
     }
-    out
+    (idx, wt, c)
+}
+
+/// The texels of level `n` texels wide an expansion reads for texel `x` of the next finer
+/// level, with their weights (twice the kernel's; reflect-101 on the doubled grid, as
+/// [`pyramid::expand`]).
+#[inline]
+fn up_taps(x: usize, n: usize, k: &[f32; 5]) -> ([usize; 3], [f32; 3], usize) {
+    let j = (x / 2) as isize;
+    let u = |i: isize| -> usize {
+        if i < 0 {
+            1.min(n - 1)
+        } else if i as usize >= n {
+            n - 1
+        } else {
+            i as usize
+        }
+    };
+    if x.is_multiple_of(2) {
+        (
+            [u(j - 1), u(j), u(j + 1)],
+            [2.0 * k[0], 2.0 * k[2], 2.0 * k[4]],
+            3,
+        )
+    } else {
+        ([u(j), u(j + 1), 0], [2.0 * k[1], 2.0 * k[3], 0.0], 2)
+    }
+}
+
+/// One layer (a photograph's, or the complement's) on part of a chart, as its pyramid is
+/// built. Level-0 texels are splatted straight into level 1 as they are sampled, so no
+/// level-0 image is ever held: the photographs are sampled where they see the chart only, and
+/// the transient memory is a quarter of the part's texels. The pyramid is a
+/// normalised-convolution one: every level is the reduced colour sums over the reduced known
+/// weight, every band a level minus the likewise normalised expansion of the next, so texels
+/// the layer does not know never enter a band. Borders are reflect-101 at the chart's edges,
+/// as [`pyramid::reduce`] and [`pyramid::expand`]; the part is padded beyond the reach of the
+/// kernels, so elsewhere nothing lies outside it.
+struct Layer {
+    /// Level-0 origin of the part in the chart, a multiple of `2^levels` so that every
+    /// level's grid lines up with the chart's.
+    ox: usize,
+    oy: usize,
+    /// The chart's size per level (`chart[0]` = level 0).
+    chart: Vec<(usize, usize)>,
+    /// Levels 1..=levels: colour sums and known weight (4 channels).
+    g: Vec<Plane>,
+    /// Levels 1..=levels: the reduced mask.
+    m: Vec<Vec<f32>>,
+    k: [f32; 5],
+}
+
+impl Layer {
+    /// A layer on the `w` x `h` texels of the chart from (`ox`, `oy`); `chart` is the
+    /// chart's size per level, `levels + 1` entries.
+    fn new(
+        (ox, oy): (usize, usize),
+        (w, h): (usize, usize),
+        chart: Vec<(usize, usize)>,
+        a: f32,
+    ) -> Self {
+        let (mut g, mut m) = (Vec::new(), Vec::new());
+        if chart.len() > 1 {
+            let (w1, h1) = (w.div_ceil(2), h.div_ceil(2));
+            g.push(Plane::zeros(w1, h1, 4));
+            m.push(vec![0f32; w1 * h1]);
+        }
+        Layer {
+            ox,
+            oy,
+            chart,
+            g,
+            m,
+            k: pyramid::kernel(a),
+        }
+    }
+
+    fn levels(&self) -> usize {
+        self.chart.len() - 1
+    }
+
+    /// Adds level-0 texel (`x`, `y`) (chart coordinates) of colour `c`, known with weight 1,
+    /// under mask `m`, to level 1.
+    #[inline]
+    fn splat(&mut self, x: usize, y: usize, c: [f32; 3], m: f32) {
+        let Some(g) = self.g.first_mut() else {
+            return;
+        };
+        let (nw, nh) = self.chart[0];
+        let (xi, xw, xn) = down_taps(x, nw, &self.k);
+        let (yi, yw, yn) = down_taps(y, nh, &self.k);
+        let (bx, by) = (self.ox / 2, self.oy / 2);
+        let mask = &mut self.m[0];
+        for b in 0..yn {
+            let Some(yy) = yi[b].checked_sub(by).filter(|&v| v < g.h) else {
+                continue;
+            };
+            for a in 0..xn {
+                let Some(xx) = xi[a].checked_sub(bx).filter(|&v| v < g.w) else {
+                    continue;
+                };
+                let wt = xw[a] * yw[b];
+                let i = yy * g.w + xx;
+                let d = &mut g.d[4 * i..4 * i + 4];
+                d[0] += wt * c[0];
+                d[1] += wt * c[1];
+                d[2] += wt * c[2];
+                d[3] += wt;
+                if m > 0.0 {
+                    mask[i] += wt * m;
+                }
+            }
+        }
+    }
+
+    /// Builds levels 2 and up from level 1 (separable, reflect-101 at the chart's edges, zero
+    /// beyond the part elsewhere).
+    fn reduce(&mut self) {
+        for l in 1..self.levels() {
+            let (src, (nw, nh)) = (&self.g[l - 1], self.chart[l]);
+            let (ox, oy) = (self.ox >> l, self.oy >> l);
+            let g = reduce_part(src, (ox, oy), (nw, nh), &self.k);
+            let ms = Plane::from_vec(src.w, src.h, 1, std::mem::take(&mut self.m[l - 1]))
+                .expect("sized");
+            let m = reduce_part(&ms, (ox, oy), (nw, nh), &self.k);
+            self.m[l - 1] = ms.d;
+            self.g.push(g);
+            self.m.push(m.d);
+        }
+    }
+
+    /// The expansion of level `l + 1` at texel (`x`, `y`) of level `l` (chart coordinates),
+    /// normalised; `None` where it knows nothing.
+    #[inline]
+    fn expanded(&self, l: usize, x: usize, y: usize) -> Option<[f32; 3]> {
+        let g = &self.g[l];
+        let (nw, nh) = self.chart[l + 1];
+        let (bx, by) = (self.ox >> (l + 1), self.oy >> (l + 1));
+        let (xi, xw, xn) = up_taps(x, nw, &self.k);
+        let (yi, yw, yn) = up_taps(y, nh, &self.k);
+        let mut s = [0f32; 4];
+        for b in 0..yn {
+            let Some(yy) = yi[b].checked_sub(by).filter(|&v| v < g.h) else {
+                continue;
+            };
+            for a in 0..xn {
+                let Some(xx) = xi[a].checked_sub(bx).filter(|&v| v < g.w) else {
+                    continue;
+                };
+                let wt = xw[a] * yw[b];
+                let i = 4 * (yy * g.w + xx);
+                for (sk, v) in s.iter_mut().zip(&g.d[i..i + 4]) {
+                    *sk += wt * v;
+                }
+            }
+        }
+        (s[3] > EPS).then(|| [s[0] / s[3], s[1] / s[3], s[2] / s[3]])
+    }
+
+    /// Band `l` at texel (`x`, `y`) of level `l` (chart coordinates) whose level value is
+    /// `v`: `v` minus the normalised expansion of the next level, `v` itself at the top.
+    #[inline]
+    fn band(&self, l: usize, x: usize, y: usize, mut v: [f32; 3]) -> [f32; 3] {
+        if l < self.levels() {
+            if let Some(u) = self.expanded(l, x, y) {
+                for k in 0..3 {
+                    v[k] -= u[k];
+                }
+            }
+        }
+        v
+    }
+
+    /// Adds the layer's bands under its mask to `acc`: levels 1 and up from the reduced
+    /// planes, level 0 from `fine`, the level-0 texels (chart coordinates, colour, mask) that
+    /// enter it (with best-view masks, those where this layer wins, stored as the finest band
+    /// instead).
+    fn accumulate(
+        &self,
+        acc: &mut ChartAcc,
+        winner_mode: bool,
+        fine: impl Iterator<Item = (usize, usize, [f32; 3], f32)>,
+    ) {
+        for l in 1..=self.levels() {
+            let (g, m) = (&self.g[l - 1], &self.m[l - 1]);
+            let (ox, oy) = (self.ox >> l, self.oy >> l);
+            let cw = acc.num[l].w;
+            let (num, den) = (&mut acc.num[l].d, &mut acc.den[l]);
+            for y in 0..g.h {
+                for x in 0..g.w {
+                    let i = y * g.w + x;
+                    let (mw, wg) = (m[i], g.d[4 * i + 3]);
+                    if mw <= 0.0 || wg <= EPS {
+                        continue;
+                    }
+                    let v = std::array::from_fn(|k| g.d[4 * i + k] / wg);
+                    let band = self.band(l, ox + x, oy + y, v);
+                    let gi = (oy + y) * cw + ox + x;
+                    den[gi] += mw;
+                    for k in 0..3 {
+                        num[3 * gi + k] += mw * band[k];
+                    }
+                }
+            }
+        }
+        let cw = acc.num[0].w;
+        for (x, y, c, mw) in fine {
+            let band = self.band(0, x, y, c);
+            let gi = y * cw + x;
+            if winner_mode {
+                acc.finest[gi] = band.map(f16::from_f32);
+            } else if mw > 0.0 {
+                acc.den[0][gi] += mw;
+                for (v, b) in acc.num[0].d[3 * gi..3 * gi + 3].iter_mut().zip(band) {
+                    *v += mw * b;
+                }
+            }
+        }
+    }
+}
+
+/// One reduction of `src`, which covers the texels from (`ox`, `oy`) (even) of a level
+/// `nw` x `nh` texels: reflect-101 at that level's edges, zero beyond `src` elsewhere. The
+/// result covers the next level from (`ox / 2`, `oy / 2`).
+fn reduce_part(
+    src: &Plane,
+    (ox, oy): (usize, usize),
+    (nw, nh): (usize, usize),
+    k: &[f32; 5],
+) -> Plane {
+    let (w, h, c) = (src.w, src.h, src.c);
+    let (dw, dh) = (w.div_ceil(2), h.div_ceil(2));
+    // Source offsets (within `src`) and weights of output column/row `d`.
+    let taps = |d: usize, o: usize, n: usize, len: usize| -> ([usize; 5], [f32; 5], usize) {
+        let mut idx = [0usize; 5];
+        let mut wt = [0f32; 5];
+        let mut cnt = 0;
+        let centre = 2 * (o / 2 + d) as isize;
+        for (t, &kt) in k.iter().enumerate() {
+            let s = pyramid::reflect101(centre + t as isize - 2, n) as isize - o as isize;
+            if s >= 0 && (s as usize) < len {
+                idx[cnt] = s as usize;
+                wt[cnt] = kt;
+                cnt += 1;
+            }
+        }
+        (idx, wt, cnt)
+    };
+    let cols: Vec<_> = (0..dw).map(|x| taps(x, ox, nw, w)).collect();
+    let mut tmp = vec![0f32; dw * h * c];
+    for y in 0..h {
+        let s = &src.d[y * w * c..(y + 1) * w * c];
+        if s.iter().all(|&v| v == 0.0) {
+            continue;
+        }
+        let row = &mut tmp[y * dw * c..(y + 1) * dw * c];
+        for (x, (idx, wt, n)) in cols.iter().enumerate() {
+            let o = &mut row[x * c..(x + 1) * c];
+            for t in 0..*n {
+                let si = idx[t] * c;
+                for ch in 0..c {
+                    o[ch] += wt[t] * s[si + ch];
+                }
+            }
+        }
+    }
+    let mut out = vec![0f32; dw * dh * c];
+    let rl = dw * c;
+    for y in 0..dh {
+        let (idx, wt, n) = taps(y, oy, nh, h);
+        let row = &mut out[y * rl..(y + 1) * rl];
+        for t in 0..n {
+            let r = &tmp[idx[t] * rl..(idx[t] + 1) * rl];
+            for (o, v) in row.iter_mut().zip(r) {
+                *o += wt[t] * v;
+            }
+        }
+    }
+    Plane::from_vec(dw, dh, c, out).expect("sized")
 }
 
 /// A chart's band accumulators.
@@ -279,8 +566,6 @@ struct ChartAcc {
     /// layer has won yet. At 8192 this and the dropped level-0 mask sums save 10 bytes per
     /// chart texel, about 0.5 GB.
     finest: Vec<[f16; 3]>,
-    /// [`TILE`] (smaller in tests).
-    tile: usize,
     /// Largest view weight so far and its photograph, photographs seen, per texel.
     best_w: Vec<f32>,
     best: Vec<u16>,
@@ -319,7 +604,6 @@ impl ChartAcc {
             } else {
                 Vec::new()
             },
-            tile: TILE,
             best_w: vec![0.0; n],
             best: vec![NO_PHOTO; n],
             views: vec![0; n],
@@ -327,141 +611,9 @@ impl ChartAcc {
         }
     }
 
-    /// Adds a layer known where `valid` is positive under `mask` (zero wherever `valid` is);
-    /// `finest` gives, for [`Masks::BestView`], the texels where this layer's finest band
-    /// wins. The layer covers the chart's texels from (`ox`, `oy`), both multiples of
-    /// `2^levels` so that every level's grid lines up with the chart's.
-    ///
-    /// The layer's pyramid is a normalised-convolution one: every level is the reduced
-    /// `valid`-weighted colour over the reduced `valid`, and every band is a level minus the
-    /// likewise normalised expansion of the next. Unknown texels thus never enter a band, and
-    /// no separate hole filling is needed (the mask's support lies inside `valid`'s at every
-    /// level, the kernel being positive).
-    ///
-    /// Large layers are processed in tiles of [`TILE`] texels (plus a margin the pyramid's
-    /// reductions and expansions cannot see across), each adding only its core: the same
-    /// values, with transient memory bounded by the tile instead of the chart (one chart of
-    /// the 8192 speed scene spans 16.5M texels, and its pyramid took 1.1 GB).
-    #[allow(clippy::too_many_arguments)]
-    fn add(
-        &mut self,
-        layer: &Plane,
-        valid: &[f32],
-        mask: Vec<f32>,
-        (ox, oy): (usize, usize),
-        levels: usize,
-        a: f32,
-        finest: &[bool],
-    ) {
-        let (w, h) = (layer.w, layer.h);
-        let tiles = tiles(w, h, levels, self.tile);
-        if tiles.len() == 1 {
-            self.add_region(layer, valid, mask, (ox, oy), tiles[0].1, levels, a, finest);
-            return;
-        }
-        for ((rx0, ry0, rx1, ry1), core) in tiles {
-            let (rw, rh) = (rx1 - rx0, ry1 - ry0);
-            let idx = |x: usize, y: usize| (ry0 + y) * w + rx0 + x;
-            let mut tm = Vec::with_capacity(rw * rh);
-            let mut tv = Vec::with_capacity(rw * rh);
-            let mut tf = Vec::with_capacity(if finest.is_empty() { 0 } else { rw * rh });
-            let mut tl = Vec::with_capacity(rw * rh * 3);
-            for y in 0..rh {
-                for x in 0..rw {
-                    let i = idx(x, y);
-                    tm.push(mask[i]);
-                    tv.push(valid[i]);
-                    tl.extend_from_slice(&layer.d[3 * i..3 * i + 3]);
-                    if !finest.is_empty() {
-                        tf.push(finest[i]);
-                    }
-                }
-            }
-            if !tm.iter().any(|&m| m > 0.0) && !tf.iter().any(|&f| f) {
-                continue;
-            }
-            let tl = Plane::from_vec(rw, rh, 3, tl).expect("sized");
-            self.add_region(&tl, &tv, tm, (ox + rx0, oy + ry0), core, levels, a, &tf);
-        }
-    }
-
-    /// [`ChartAcc::add`] on one region (origin (`ox`, `oy`) in the chart, aligned to the
-    /// coarsest grid), adding only the texels whose full-resolution position lies in `core`
-    /// (x0, y0, x1, y1, region coordinates; x0 and y0 on the coarsest grid).
-    #[allow(clippy::too_many_arguments)]
-    fn add_region(
-        &mut self,
-        layer: &Plane,
-        valid: &[f32],
-        mask: Vec<f32>,
-        (ox, oy): (usize, usize),
-        core: (usize, usize, usize, usize),
-        levels: usize,
-        a: f32,
-        finest: &[bool],
-    ) {
-        let (w, h) = (layer.w, layer.h);
-        let mut pm = Plane::zeros(w, h, 4);
-        for (i, &v) in valid.iter().enumerate() {
-            if v > 0.0 {
-                for k in 0..3 {
-                    pm.d[4 * i + k] = v * layer.d[3 * i + k];
-                }
-                pm.d[4 * i + 3] = v;
-            }
-        }
-        let g = pyramid::gaussian(pm, levels, a);
-        let masks = pyramid::gaussian(Plane::from_vec(w, h, 1, mask).expect("sized"), levels, a);
-        let winner_mode = !finest.is_empty();
-        const EPS: f32 = 1e-12;
-        for l in 0..=levels {
-            let (gl, m) = (&g[l], &masks[l]);
-            let up = (l < levels).then(|| pyramid::expand(&g[l + 1], gl.w, gl.h, a));
-            let cw = self.num[l].w;
-            let (lx, ly) = (ox >> l, oy >> l);
-            let num = &mut self.num[l].d;
-            let den = &mut self.den[l];
-            let best = &mut self.finest;
-            let (cx0, cy0) = (core.0 >> l, core.1 >> l);
-            let (cx1, cy1) = (
-                core.2.div_ceil(1 << l).min(m.w),
-                core.3.div_ceil(1 << l).min(m.h),
-            );
-            for y in cy0..cy1 {
-                for x in cx0..cx1 {
-                    let i = y * m.w + x;
-                    let mw = m.d[i];
-                    let fin = l == 0 && winner_mode && finest[i];
-                    if mw <= 0.0 && !fin {
-                        continue;
-                    }
-                    let wg = gl.d[4 * i + 3];
-                    if wg <= EPS {
-                        continue;
-                    }
-                    let mut band: [f32; 3] = std::array::from_fn(|k| gl.d[4 * i + k] / wg);
-                    if let Some(u) = &up {
-                        let wu = u.d[4 * i + 3];
-                        if wu > EPS {
-                            for (k, b) in band.iter_mut().enumerate() {
-                                *b -= u.d[4 * i + k] / wu;
-                            }
-                        }
-                    }
-                    let gi = (ly + y) * cw + lx + x;
-                    if fin {
-                        best[gi] = band.map(f16::from_f32);
-                    }
-                    if mw <= 0.0 || (l == 0 && winner_mode) {
-                        continue;
-                    }
-                    den[gi] += mw;
-                    for k in 0..3 {
-                        num[3 * gi + k] += mw * band[k];
-                    }
-                }
-            }
-        }
+    /// The chart's size per level.
+    fn sizes(&self) -> Vec<(usize, usize)> {
+        self.num.iter().map(|p| (p.w, p.h)).collect()
     }
 
     /// The blended chart image; the band sums are freed, the per-texel bookkeeping stays.
@@ -611,28 +763,41 @@ fn multiband(
     })?;
     progress.finish();
     // The complement layer, then collapse, a batch of charts at a time so that finished
-    // charts' accumulators are freed as the atlas fills.
+    // charts' accumulators are freed as the atlas fills: largest first (their accumulators
+    // are the most memory), batches of at most COLLAPSE_BATCH chart texels.
     let mut color = vec![0f32; n * n * 3];
     let mut source = vec![TexelSource::Empty as u8; n * n];
     let mut views = vec![0u8; n * n];
     let mut best = vec![NO_PHOTO; n * n];
     let mut accs: Vec<Option<ChartAcc>> = accs.into_iter().map(Some).collect();
-    let batch = 64;
-    for start in (0..charts.len()).step_by(batch) {
-        let end = (start + batch).min(charts.len());
-        let done: Vec<(Plane, ChartAcc)> = accs[start..end]
+    let mut order: Vec<usize> = (0..charts.len()).collect();
+    order.sort_by_key(|&c| std::cmp::Reverse(charts[c].w * charts[c].h));
+    let mut rest = &order[..];
+    while !rest.is_empty() {
+        let mut take = 0;
+        let mut area = 0;
+        while take < rest.len()
+            && (take == 0 || area + charts[rest[take]].w * charts[rest[take]].h <= COLLAPSE_BATCH)
+        {
+            area += charts[rest[take]].w * charts[rest[take]].h;
+            take += 1;
+        }
+        let (batch, tail) = rest.split_at(take);
+        rest = tail;
+        let mut work: Vec<(usize, ChartAcc)> = batch
+            .iter()
+            .map(|&ci| (ci, accs[ci].take().expect("each chart once")))
+            .collect();
+        let done: Vec<Plane> = work
             .par_iter_mut()
-            .zip(&charts[start..end])
-            .enumerate()
-            .map(|(j, (acc, ch))| {
-                let mut acc = acc.take().expect("each chart once");
-                let ci = (start + j) as u32;
-                add_complement(&prep, ch, ci, &face_chart, &mut acc, a, winner_mode);
-                (acc.collapse(a, winner_mode), acc)
+            .map(|(ci, acc)| {
+                let ch = &charts[*ci];
+                add_complement(&prep, ch, *ci as u32, &face_chart, acc, a, winner_mode);
+                acc.collapse(a, winner_mode)
             })
             .collect();
-        for ((img, acc), (j, ch)) in done.into_iter().zip(charts[start..end].iter().enumerate()) {
-            let ci = (start + j) as u32;
+        for (img, (ci, acc)) in done.into_iter().zip(work) {
+            let ch = &charts[ci];
             for y in 0..ch.h {
                 for x in 0..ch.w {
                     let (gx, gy) = (ch.x0 + x, ch.y0 + y);
@@ -640,7 +805,7 @@ fn multiband(
                     let Some(f) = prep.owner(gi) else {
                         continue;
                     };
-                    if face_chart[f as usize] != ci {
+                    if face_chart[f as usize] != ci as u32 {
                         continue;
                     }
                     let li = y * ch.w + x;
@@ -655,6 +820,7 @@ fn multiband(
                 }
             }
         }
+        crate::io::release_freed_memory();
     }
     let t = std::time::Instant::now();
     let levelling = mopts.level_seams.then(|| {
@@ -711,11 +877,11 @@ fn add_photo(
     let ox = bx0.saturating_sub(pad) / step * step;
     let oy = by0.saturating_sub(pad) / step * step;
     let (w, h) = ((bx1 + pad).min(ch.w) - ox, (by1 + pad).min(ch.h) - oy);
-    let (cx, cy) = (ch.x0 + ox, ch.y0 + oy);
-    let mut layer = Plane::zeros(w, h, 3);
-    let mut valid = vec![0f32; w * h];
-    let mut mask = vec![0f32; w * h];
-    let mut weight = vec![0f32; w * h];
+    let mut layer = Layer::new((ox, oy), (w, h), acc.sizes(), mopts.a);
+    let winner_mode = mopts.masks == Masks::BestView;
+    // The level-0 texels that enter the finest band: (chart x, chart y, colour, mask).
+    let mut fine: Vec<(u32, u32, [f32; 3], f32)> = Vec::new();
+    let mut any_mask = false;
     let n = prep.size();
     for &f in &ch.faces {
         if !prep.samples(f as usize, photo) {
@@ -729,53 +895,42 @@ fn add_photo(
         };
         let reference = face_ref[f as usize];
         prep.sample_face(ph, f, 0, n, |x, y, c, wt| {
-            let i = (y - cy) * w + (x - cx);
-            layer.d[3 * i..3 * i + 3].copy_from_slice(&c);
-            valid[i] = 1.0;
-            weight[i] = wt;
-            mask[i] = match mopts.masks {
+            let (x, y) = (x - ch.x0, y - ch.y0);
+            let m = match mopts.masks {
                 Masks::Paper => f32::from(in_mask),
                 _ if reference > 0.0 => (wt / reference).min(1.0),
                 _ => 1.0,
             };
+            let i = y * ch.w + x;
+            acc.views[i] = acc.views[i].saturating_add(1);
+            // Photographs come in order, so ties keep the first: deterministic.
+            let wins = wt > acc.best_w[i];
+            if wins {
+                acc.best_w[i] = wt;
+                acc.best[i] = photo as u16;
+            }
+            if let Some(avg) = &mut acc.avg {
+                for k in 0..3 {
+                    avg[i][k] += wt * c[k];
+                }
+                avg[i][3] += wt;
+            }
+            layer.splat(x, y, c, m);
+            any_mask |= m > 0.0;
+            if (winner_mode && wins) || (!winner_mode && m > 0.0) {
+                fine.push((x as u32, y as u32, c, m));
+            }
         });
     }
     cpu_sampling.fetch_add(t.elapsed().as_nanos() as u64, Ordering::Relaxed);
-    let winner_mode = mopts.masks == Masks::BestView;
-    let mut finest = if winner_mode {
-        vec![false; w * h]
-    } else {
-        Vec::new()
-    };
-    let mut any = false;
-    for i in 0..w * h {
-        if valid[i] == 0.0 {
-            continue;
-        }
-        any = true;
-        // The chart-wide bookkeeping index.
-        let i_local = i;
-        let i = (oy + i / w) * ch.w + ox + i % w;
-        acc.views[i] = acc.views[i].saturating_add(1);
-        if weight[i_local] > acc.best_w[i] {
-            // Photographs come in order, so ties keep the first: deterministic.
-            acc.best_w[i] = weight[i_local];
-            acc.best[i] = photo as u16;
-            if winner_mode {
-                finest[i_local] = true;
-            }
-        }
-        if let Some(avg) = &mut acc.avg {
-            for k in 0..3 {
-                avg[i][k] += weight[i_local] * layer.d[3 * i_local + k];
-            }
-            avg[i][3] += weight[i_local];
-        }
-    }
-    if !any || !mask.iter().any(|&m| m > 0.0) {
+    if !any_mask {
         return;
     }
-    acc.add(&layer, &valid, mask, (ox, oy), ch.levels, mopts.a, &finest);
+    layer.reduce();
+    let fine = fine
+        .into_iter()
+        .map(|(x, y, c, m)| (x as usize, y as usize, c, m));
+    layer.accumulate(acc, winner_mode, fine);
 }
 
 /// The complement of the photographs' masks, carrying the vertex-colour texture (the paper's
@@ -790,114 +945,191 @@ fn add_complement(
     winner_mode: bool,
 ) {
     let n = prep.size();
-    let levels = acc.num.len() - 1;
     // No photograph's mask covers the texel (best-view masks are positive exactly where a
-    // view weight is). Decided before any tile adds to the level-0 sums.
+    // view weight is). Decided before the layer adds to the level-0 sums.
     let uncovered: Vec<bool> = if winner_mode {
         acc.best_w.iter().map(|&b| b <= 0.0).collect()
     } else {
         acc.den[0].iter().map(|&d| d <= 0.0).collect()
     };
-    // Tile by tile, as [`ChartAcc::add`] would split the whole chart's layer, without ever
-    // holding that layer (the largest chart of the 8192 speed scene spans 16.5M texels).
-    for ((rx0, ry0, rx1, ry1), core) in tiles(ch.w, ch.h, levels, acc.tile) {
-        let (w, h) = (rx1 - rx0, ry1 - ry0);
-        let mut layer = Plane::zeros(w, h, 3);
-        let mut inside = vec![0f32; w * h];
-        let mut mask = vec![0f32; w * h];
-        let mut finest = if winner_mode {
-            vec![false; w * h]
-        } else {
-            Vec::new()
-        };
-        let mut any = false;
-        for y in 0..h {
-            for x in 0..w {
-                let (cx, cy) = (rx0 + x, ry0 + y);
-                let gi = (ch.y0 + cy) * n + ch.x0 + cx;
-                let Some(f) = prep.owner(gi) else {
-                    continue;
-                };
-                if face_chart[f as usize] != ci {
-                    continue;
-                }
-                let i = y * w + x;
-                let ci_ = cy * ch.w + cx;
-                inside[i] = 1.0;
-                let c = match &acc.avg {
-                    Some(avg) if avg[ci_][3] > 0.0 => {
-                        let s = avg[ci_][3];
-                        [avg[ci_][0] / s, avg[ci_][1] / s, avg[ci_][2] / s]
-                    }
-                    _ => prep.vertex_color_at(f, ch.x0 + cx, ch.y0 + cy),
-                };
-                layer.d[3 * i..3 * i + 3].copy_from_slice(&c);
-                if uncovered[ci_] {
-                    mask[i] = 1.0;
-                    any = true;
-                    if winner_mode {
-                        finest[i] = true;
-                    }
-                }
+    let avg = acc.avg.take();
+    // The layer's colour at chart texel (x, y), if the chart owns it.
+    let colour = |x: usize, y: usize| -> Option<[f32; 3]> {
+        let f = prep.owner((ch.y0 + y) * n + ch.x0 + x)?;
+        if face_chart[f as usize] != ci {
+            return None;
+        }
+        let i = y * ch.w + x;
+        Some(match &avg {
+            Some(avg) if avg[i][3] > 0.0 => {
+                let s = avg[i][3];
+                [avg[i][0] / s, avg[i][1] / s, avg[i][2] / s]
+            }
+            _ => prep.vertex_color_at(f, ch.x0 + x, ch.y0 + y),
+        })
+    };
+    let mut layer = Layer::new((0, 0), (ch.w, ch.h), acc.sizes(), a);
+    let mut any = false;
+    for y in 0..ch.h {
+        for x in 0..ch.w {
+            if let Some(c) = colour(x, y) {
+                let m = f32::from(uncovered[y * ch.w + x]);
+                any |= m > 0.0;
+                layer.splat(x, y, c, m);
             }
         }
-        if any {
-            acc.add_region(&layer, &inside, mask, (rx0, ry0), core, levels, a, &finest);
-        }
     }
-    acc.avg = None;
+    if any {
+        layer.reduce();
+        // The finest band again from the colours (recomputing them costs less than holding
+        // a chart's worth).
+        let fine = (0..ch.h)
+            .flat_map(|y| (0..ch.w).map(move |x| (x, y)))
+            .filter(|&(x, y)| uncovered[y * ch.w + x])
+            .filter_map(|(x, y)| colour(x, y).map(|c| (x, y, c, 1.0)));
+        layer.accumulate(acc, winner_mode, fine);
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    #[test]
-    fn tiled_accumulation_equals_the_whole_layer() {
-        let ch = Chart {
-            faces: Vec::new(),
-            x0: 0,
-            y0: 0,
-            w: 300,
-            h: 260,
-            levels: 2,
-        };
-        let (w, h) = (ch.w, ch.h);
-        let mut s = 7u64;
+    fn random_layer(w: usize, h: usize, seed: u64) -> Vec<[f32; 3]> {
+        let mut s = seed;
         let mut rnd = || {
             s = s
                 .wrapping_mul(6364136223846793005)
                 .wrapping_add(1442695040888963407);
             (s >> 40) as f32 / (1u64 << 24) as f32
         };
-        let layer = Plane::from_vec(w, h, 3, (0..w * h * 3).map(|_| rnd()).collect()).unwrap();
-        // Unknown columns and rows, a soft mask, winners almost everywhere.
-        let valid: Vec<f32> = (0..w * h)
-            .map(|i| f32::from(i % w > 20 && (i / w) % 50 != 3))
-            .collect();
-        let mask: Vec<f32> = (0..w * h)
-            .map(|i| valid[i] * (i % w) as f32 / w as f32)
-            .collect();
-        let finest: Vec<bool> = (0..w * h).map(|i| valid[i] > 0.0 && i % 7 != 0).collect();
-        for winner in [false, true] {
-            let f: &[bool] = if winner { &finest } else { &[] };
-            let mut whole = ChartAcc::new(&ch, false, winner);
-            let mut tiled = ChartAcc::new(&ch, false, winner);
-            tiled.tile = 64;
-            whole.add(&layer, &valid, mask.clone(), (0, 0), ch.levels, 0.4, f);
-            tiled.add(&layer, &valid, mask.clone(), (0, 0), ch.levels, 0.4, f);
-            for l in 0..=ch.levels {
-                assert_eq!(whole.num[l].d, tiled.num[l].d, "level {l} bands");
-                assert_eq!(whole.den[l], tiled.den[l], "level {l} mask sums");
+        (0..w * h).map(|_| [rnd(), rnd(), rnd()]).collect()
+    }
+
+    fn chart(w: usize, h: usize, levels: usize) -> Chart {
+        Chart {
+            faces: Vec::new(),
+            x0: 0,
+            y0: 0,
+            w,
+            h,
+            levels,
+        }
+    }
+
+    fn max_diff(a: &[f32], b: &[f32]) -> f32 {
+        assert_eq!(a.len(), b.len());
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f32::max)
+    }
+
+    /// Splatting texels into level 1 and reducing from there gives the dense pyramid of
+    /// `pyramid` (tested against OpenCV) on the same premultiplied layer, borders included,
+    /// whether the layer covers the whole chart or a padded part of it.
+    #[test]
+    fn splatted_pyramid_equals_the_dense_one() {
+        let (w, h, levels) = (45, 38, 3);
+        let acc = ChartAcc::new(&chart(w, h, levels), false, false);
+        let colours = random_layer(w, h, 7);
+        // Known on the whole chart, then only in a window away from the chart's edges.
+        for (x0, y0, x1, y1) in [(0, 0, w, h), (17, 19, 25, 24)] {
+            let known = |x: usize, y: usize| x >= x0 && x < x1 && y >= y0 && y < y1;
+            let mut dense = Plane::zeros(w, h, 4);
+            for y in 0..h {
+                for x in 0..w {
+                    if known(x, y) {
+                        let c = colours[y * w + x];
+                        dense.d[4 * (y * w + x)..4 * (y * w + x) + 4]
+                            .copy_from_slice(&[c[0], c[1], c[2], 1.0]);
+                    }
+                }
             }
-            let bits = |a: &ChartAcc| -> Vec<u16> {
-                a.finest.iter().flat_map(|b| b.map(f16::to_bits)).collect()
-            };
-            assert_eq!(bits(&whole), bits(&tiled), "finest band");
-            assert!(
-                whole.num[1].d.iter().any(|&v| v != 0.0),
-                "something was added"
+            let g = pyramid::gaussian(dense, levels, 0.4);
+            // The part: the window padded by four coarsest texels, aligned to them.
+            let step = 1 << levels;
+            let (ox, oy) = (
+                x0.saturating_sub(4 * step) / step * step,
+                y0.saturating_sub(4 * step) / step * step,
             );
+            let (pw, ph) = ((x1 + 4 * step).min(w) - ox, (y1 + 4 * step).min(h) - oy);
+            let mut layer = Layer::new((ox, oy), (pw, ph), acc.sizes(), 0.4);
+            for y in y0..y1 {
+                for x in x0..x1 {
+                    layer.splat(x, y, colours[y * w + x], 1.0);
+                }
+            }
+            layer.reduce();
+            for (l, part) in (1..=levels).zip(&layer.g) {
+                let (bx, by) = (ox >> l, oy >> l);
+                let mut expect = Vec::new();
+                for y in 0..part.h {
+                    for x in 0..part.w {
+                        let i = 4 * ((by + y) * g[l].w + bx + x);
+                        expect.extend_from_slice(&g[l].d[i..i + 4]);
+                    }
+                }
+                let d = max_diff(&part.d, &expect);
+                assert!(d < 1e-5, "window {x0},{y0}: level {l} differs by {d}");
+                // Outside the part the dense pyramid is zero: nothing was lost.
+                let inside: f32 = part.d.iter().skip(3).step_by(4).sum();
+                let all: f32 = g[l].d.iter().skip(3).step_by(4).sum();
+                assert!(
+                    (inside - all).abs() < 1e-3 * all,
+                    "level {l}: {inside} of {all}"
+                );
+            }
+        }
+    }
+
+    /// One layer known everywhere, alone under its mask, collapses back to itself (borders
+    /// included): the bands and the collapse agree.
+    #[test]
+    fn a_lone_layer_collapses_back_to_itself() {
+        let (w, h, levels) = (70, 53, 2);
+        let colours = random_layer(w, h, 11);
+        for winner in [false, true] {
+            let mut acc = ChartAcc::new(&chart(w, h, levels), false, winner);
+            let mut layer = Layer::new((0, 0), (w, h), acc.sizes(), 0.4);
+            for y in 0..h {
+                for x in 0..w {
+                    layer.splat(x, y, colours[y * w + x], 1.0);
+                }
+            }
+            layer.reduce();
+            let fine = (0..w * h).map(|i| (i % w, i / w, colours[i], 1.0));
+            layer.accumulate(&mut acc, winner, fine);
+            let out = acc.collapse(0.4, winner);
+            let flat: Vec<f32> = colours.iter().flatten().copied().collect();
+            let d = max_diff(&out.d, &flat);
+            // Half precision holds the finest band with best-view masks.
+            let tol = if winner { 1e-3 } else { 1e-5 };
+            assert!(d < tol, "winner {winner}: {d}");
+        }
+    }
+
+    #[test]
+    #[allow(clippy::needless_range_loop)]
+    fn reduction_taps_match_the_kernel_everywhere() {
+        let k = pyramid::kernel(0.4);
+        for n in [1usize, 2, 3, 4, 5, 9, 16] {
+            // Every source's taps, summed per destination, give the gather weights.
+            let n1 = n.div_ceil(2);
+            let mut w = vec![vec![0f32; n]; n1];
+            for x in 0..n {
+                let (idx, wt, c) = down_taps(x, n, &k);
+                for j in 0..c {
+                    w[idx[j]][x] += wt[j];
+                }
+            }
+            for (big, row) in w.iter().enumerate() {
+                let mut expect = vec![0f32; n];
+                for (t, kt) in k.iter().enumerate() {
+                    expect[pyramid::reflect101(2 * big as isize + t as isize - 2, n)] += kt;
+                }
+                assert!(max_diff(row, &expect) < 1e-7, "n {n}, destination {big}");
+            }
         }
     }
 }

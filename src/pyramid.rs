@@ -52,7 +52,7 @@ pub fn kernel(a: f32) -> [f32; 5] {
 
 /// Reflect-101 (`gfedcb|abcdefgh|gfedcba`): OpenCV's default border.
 #[inline]
-fn reflect101(i: isize, n: usize) -> usize {
+pub(crate) fn reflect101(i: isize, n: usize) -> usize {
     if n == 1 {
         return 0;
     }

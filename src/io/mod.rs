@@ -130,6 +130,18 @@ pub fn peak_memory() -> Option<u64> {
     Some(kb * 1024)
 }
 
+/// Returns memory the allocator holds but no longer uses to the system (glibc's
+/// `malloc_trim`; a no-op elsewhere). glibc keeps freed small and mid-sized blocks in its
+/// heaps, so memory freed by one stage (the merge's thousand chart accumulators) would
+/// otherwise stay resident while the next one (the atlas they collapse into) grows.
+pub fn release_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only releases free pages of the allocator's own heaps.
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}
+
 /// An encoded texture image ready to be written beside or inside a mesh.
 #[derive(Debug, Clone, PartialEq)]
 pub struct EncodedTexture {
