@@ -365,14 +365,36 @@ pub(crate) fn for_each_photo(
     progress: &dyn Progress,
     mut work: impl FnMut(usize, &Rgb32FImage, Option<&GrayImage>) -> Result<()> + Send,
 ) -> Result<()> {
-    let Some(first) = photos.first() else {
+    for_each_photo_with(
+        photos,
+        progress,
+        |_, _| (),
+        |i, rgb, mask, ()| work(i, rgb, mask),
+    )
+}
+
+/// [`for_each_photo`] with a per-photograph `prepare` step (depth map, mip pyramid) that runs
+/// with the decoding, beside `work` on the previous photograph, and whose result `work` gets.
+pub(crate) fn for_each_photo_with<T: Send>(
+    photos: &[Photo],
+    progress: &dyn Progress,
+    prepare: impl Fn(usize, &Rgb32FImage) -> T + Sync,
+    mut work: impl FnMut(usize, &Rgb32FImage, Option<&GrayImage>, T) -> Result<()> + Send,
+) -> Result<()> {
+    if photos.is_empty() {
         return Ok(());
+    }
+    let load = |i: usize| -> Result<(Decoded, T)> {
+        let d = decode(&photos[i])?;
+        let t = prepare(i, &d.rgb);
+        Ok((d, t))
     };
-    let mut current = decode(first)?;
+    let mut current = load(0)?;
     for i in 0..photos.len() {
+        let (cur, extra) = current;
         let (next, done) = rayon::join(
-            || photos.get(i + 1).map(decode).transpose(),
-            || work(i, &current.rgb, current.mask.as_ref()),
+            || (i + 1 < photos.len()).then(|| load(i + 1)).transpose(),
+            || work(i, &cur.rgb, cur.mask.as_ref(), extra),
         );
         done?;
         progress.advance(1);

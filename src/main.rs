@@ -143,6 +143,11 @@ enum Command {
         /// uses 0.375).
         #[arg(long, default_value_t = 0.4)]
         kernel_a: f32,
+        /// Multiband with best-view masks: per face, this many photographs of largest weight
+        /// are sampled at every texel; the others at every other texel, for the coarser bands
+        /// only (0 = all at every texel; slower, same finest band).
+        #[arg(long, default_value_t = 2)]
+        full_views: usize,
         /// Multiband: leave chart borders as blended, without the smooth per-chart correction
         /// that makes both sides of every border agree.
         #[arg(long)]
@@ -459,6 +464,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             merge_masks,
             levels,
             kernel_a,
+            full_views,
             no_seam_levelling,
             no_restore,
             restore_method,
@@ -494,6 +500,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             });
             opts.merge.levels = levels;
             opts.merge.a = kernel_a;
+            opts.merge.full_views = full_views;
             opts.merge.level_seams = !no_seam_levelling;
             opts.restoration = if no_restore {
                 scantex::pipeline::Restoration::Off

@@ -14,7 +14,7 @@
 //! the charts' band accumulators (about 18 bytes per texel of chart rectangles with best-view
 //! masks, 28 with the others), whatever the number of photographs.
 
-use crate::bind::{for_each_photo, Binding};
+use crate::bind::{for_each_photo_with, Binding};
 use crate::error::{Error, Result};
 use crate::level;
 use crate::mesh::Mesh;
@@ -105,6 +105,11 @@ pub struct MergeOptions {
     pub a: f32,
     /// Level chart borders after blending ([`crate::level`]; multiband only). Default: true.
     pub level_seams: bool,
+    /// [`Masks::BestView`]: per face, the photographs of largest weight sampled at every
+    /// texel; the others are sampled at every other texel in both directions (a quarter of
+    /// the samples) and enter only the coarser bands, which is all best-view masks take from
+    /// them. 0 = every photograph at every texel. Default: 2 (`docs/decisions.md`).
+    pub full_views: usize,
 }
 
 impl Default for MergeOptions {
@@ -115,6 +120,7 @@ impl Default for MergeOptions {
             levels: 2,
             a: 0.4,
             level_seams: true,
+            full_views: 2,
         }
     }
 }
@@ -150,8 +156,12 @@ struct Chart {
 
 /// Charts as UV islands (faces joined through shared texture-coordinate indices), so that
 /// atlases from other tools work too. Also returns each face's chart (`u32::MAX` off the page).
-fn find_charts(prep: &Prepared, mesh: &Mesh, max_levels: u32) -> (Vec<Chart>, Vec<u32>) {
-    let uv = mesh.uv.as_ref().expect("Prepared checked the UVs");
+fn find_charts(
+    face_rect: impl Fn(usize) -> Option<((usize, usize), (usize, usize))>,
+    mesh: &Mesh,
+    max_levels: u32,
+) -> (Vec<Chart>, Vec<u32>) {
+    let uv = mesh.uv.as_ref().expect("the caller checked the UVs");
     let mut parent: Vec<u32> = (0..uv.coords.len() as u32).collect();
     fn find(p: &mut [u32], mut i: u32) -> u32 {
         while p[i as usize] != i {
@@ -172,7 +182,7 @@ fn find_charts(prep: &Prepared, mesh: &Mesh, max_levels: u32) -> (Vec<Chart>, Ve
     let mut charts: Vec<Chart> = Vec::new();
     let mut face_chart = vec![u32::MAX; mesh.num_faces()];
     for (f, slot) in face_chart.iter_mut().enumerate() {
-        let Some(((r0, r1), (c0, c1))) = prep.face_rect(f) else {
+        let Some(((r0, r1), (c0, c1))) = face_rect(f) else {
             continue;
         };
         let root = find(&mut parent, uv.faces[f][0]) as usize;
@@ -234,6 +244,9 @@ fn ring_valid(mesh: &Mesh, b: &Binding) -> Vec<Vec<u32>> {
         .collect()
 }
 
+/// `ChartAcc::best_w` of a texel only coarse samples saw (no photograph's finest band).
+const COARSE_SEEN: f32 = -1.0;
+
 /// Chart texels (of bounding rectangles) collapsed in one parallel batch: bounds the
 /// collapsed images held before they are copied into the atlas.
 const COLLAPSE_BATCH: usize = 1 << 22;
@@ -244,7 +257,7 @@ const EPS: f32 = 1e-12;
 /// The texels of the next coarser level a texel `x` of a level `n` texels wide reaches in a
 /// reduction, with their kernel weights (reflect-101 at the chart's borders, as
 /// [`pyramid::reduce`]): `(index, weight)` pairs, `count` of them used.
-#[inline]
+#[inline(always)]
 fn down_taps(x: usize, n: usize, k: &[f32; 5]) -> ([usize; 6], [f32; 6], usize) {
     let mut idx = [0usize; 6];
     let mut wt = [0f32; 6];
@@ -354,10 +367,10 @@ impl Layer {
         self.chart.len() - 1
     }
 
-    /// Adds level-0 texel (`x`, `y`) (chart coordinates) of colour `c`, known with weight 1,
-    /// under mask `m`, to level 1.
-    #[inline]
-    fn splat(&mut self, x: usize, y: usize, c: [f32; 3], m: f32) {
+    /// Adds level-0 texel (`x`, `y`) (chart coordinates) of colour `c`, known with weight
+    /// `w` (the texels it stands for), under mask `m`, to level 1.
+    #[inline(always)]
+    fn splat(&mut self, x: usize, y: usize, c: [f32; 3], m: f32, w: f32) {
         let Some(g) = self.g.first_mut() else {
             return;
         };
@@ -374,7 +387,7 @@ impl Layer {
                 let Some(xx) = xi[a].checked_sub(bx).filter(|&v| v < g.w) else {
                     continue;
                 };
-                let wt = xw[a] * yw[b];
+                let wt = xw[a] * yw[b] * w;
                 let i = yy * g.w + xx;
                 let d = &mut g.d[4 * i..4 * i + 4];
                 d[0] += wt * c[0];
@@ -707,31 +720,46 @@ fn multiband(
     let a = mopts.a;
     let paper = mopts.masks == Masks::Paper;
     let winner_mode = mopts.masks == Masks::BestView;
-    let (charts, face_chart) = find_charts(&prep, mesh, mopts.levels);
+    let (charts, face_chart) = find_charts(|f| prep.face_rect(f), mesh, mopts.levels);
     let ring = paper.then(|| ring_valid(mesh, binding));
     // A face's reference weight: its best photograph's mean vertex weight, so relative masks
-    // are about 1 for the best view whatever the units of the weights.
-    let face_ref: Vec<f32> = (0..mesh.num_faces())
+    // are about 1 for the best view whatever the units of the weights. And, with best-view
+    // masks, the `full_views` photographs of largest weight, the only ones sampled at every
+    // texel (the others enter the coarser bands only).
+    let k_full = if winner_mode { mopts.full_views } else { 0 };
+    let per_face: Vec<(f32, Vec<u32>)> = (0..mesh.num_faces())
         .into_par_iter()
         .map(|f| {
             let fv = mesh.faces[f];
-            let mut best = 0f32;
-            for &p in prep.common.of(f) {
-                let s: f32 = fv
-                    .iter()
-                    .map(|v| {
-                        binding
-                            .views(v.idx())
-                            .iter()
-                            .find(|s| s.photo == p)
-                            .map_or(0.0, |s| s.weight)
-                    })
-                    .sum();
-                best = best.max(s / 3.0);
+            let mut ws: Vec<(f32, u32)> = prep
+                .common
+                .of(f)
+                .iter()
+                .map(|&p| {
+                    let s: f32 = fv
+                        .iter()
+                        .map(|v| {
+                            binding
+                                .views(v.idx())
+                                .iter()
+                                .find(|s| s.photo == p)
+                                .map_or(0.0, |s| s.weight)
+                        })
+                        .sum();
+                    (s / 3.0, p)
+                })
+                .collect();
+            let best = ws.iter().map(|w| w.0).fold(0f32, f32::max);
+            if k_full == 0 || ws.len() <= k_full {
+                return (best, Vec::new());
             }
-            best
+            ws.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+            let mut top: Vec<u32> = ws[..k_full].iter().map(|w| w.1).collect();
+            top.sort_unstable();
+            (best, top)
         })
         .collect();
+    let (face_ref, face_full): (Vec<f32>, Vec<Vec<u32>>) = per_face.into_iter().unzip();
     let mut accs: Vec<ChartAcc> = charts
         .par_iter()
         .map(|ch| ChartAcc::new(ch, paper, winner_mode))
@@ -739,10 +767,11 @@ fn multiband(
     let (mut seconds_setup, mut seconds_charts) = (0.0, 0.0);
     let cpu_sampling = AtomicU64::new(0);
     progress.start("merging", photos.len() as u64);
-    for_each_photo(photos, progress, |pi, rgb, mask| {
-        let t = std::time::Instant::now();
-        let ph = prep.photo(photos, pi, rgb, mask);
-        seconds_setup += t.elapsed().as_secs_f64();
+    // The next photograph's depth map and mip levels are built while this one is sampled.
+    let setup = |pi: usize, rgb: &image::Rgb32FImage| prep.photo_setup(photos, pi, rgb);
+    for_each_photo_with(photos, progress, setup, |pi, rgb, mask, setup| {
+        seconds_setup += setup.seconds;
+        let ph = prep.photo_with(photos, pi, rgb, mask, setup);
         let t = std::time::Instant::now();
         accs.par_iter_mut()
             .zip(charts.par_iter())
@@ -754,6 +783,7 @@ fn multiband(
                     acc,
                     ring.as_deref(),
                     &face_ref,
+                    &face_full,
                     mopts,
                     &cpu_sampling,
                 )
@@ -812,7 +842,7 @@ fn multiband(
                     color[3 * gi..3 * gi + 3].copy_from_slice(&img.d[3 * li..3 * li + 3]);
                     views[gi] = acc.views[li];
                     best[gi] = acc.best[li];
-                    source[gi] = if acc.best_w[li] > 0.0 {
+                    source[gi] = if acc.best_w[li] != 0.0 {
                         TexelSource::Photos as u8
                     } else {
                         prep.fallback_source(f) as u8
@@ -843,6 +873,26 @@ fn multiband(
     Ok(out)
 }
 
+/// Levels chart borders again, on `res`'s current colours: restoration fills texels on both
+/// sides of chart borders independently, and the steps it leaves there are what levelling
+/// removes (`docs/decisions.md`). `mesh` is the one `res` was merged for; the gutter is
+/// filled again, `gutter_fill` texels deep.
+pub fn relevel(mesh: &Mesh, res: &mut Resampled, gutter_fill: u32) -> Result<level::LevelStats> {
+    let t = std::time::Instant::now();
+    let n = res.color.width() as usize;
+    let (owner, rects) = crate::resample::texel_owners(mesh, n as u32)?;
+    let (_, face_chart) = find_charts(|f| rects[f], mesh, 0);
+    drop(rects);
+    let own = |i: usize| (owner[i] != u32::MAX).then_some(owner[i]);
+    let color: &mut [f32] = &mut res.color;
+    let mut st = level::level_seams(mesh, n, &own, &face_chart, color, level::SMOOTHNESS);
+    drop(owner);
+    crate::resample::refill_gutter(res, gutter_fill);
+    st.seconds = t.elapsed().as_secs_f64();
+    res.stats.seam_levelling_after_restore = Some(st);
+    Ok(st)
+}
+
 /// Photograph `ph`'s layer on chart `ch`: sampled, holes filled, split into bands and added
 /// under its mask.
 #[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
@@ -853,6 +903,7 @@ fn add_photo(
     acc: &mut ChartAcc,
     ring: Option<&[Vec<u32>]>,
     face_ref: &[f32],
+    face_full: &[Vec<u32>],
     mopts: &MergeOptions,
     cpu_sampling: &AtomicU64,
 ) {
@@ -894,13 +945,39 @@ fn add_photo(
             None => true,
         };
         let reference = face_ref[f as usize];
-        prep.sample_face(ph, f, 0, n, |x, y, c, wt| {
+        let mask_of = |wt: f32| match mopts.masks {
+            Masks::Paper => f32::from(in_mask),
+            _ if reference > 0.0 => (wt / reference).min(1.0),
+            _ => 1.0,
+        };
+        let full = &face_full[f as usize];
+        if ch.levels > 0 && !full.is_empty() && full.binary_search(&photo).is_err() {
+            // Coarse: one sample per 2 x 2 texels, for the coarser bands; these texels count
+            // as seen (never as this photograph's winners: their finest band is not known).
+            prep.sample_face(ph, f, 0, n, Some((ch.x0, ch.y0)), |x, y, c, wt| {
+                let (x, y) = (x - ch.x0, y - ch.y0);
+                for (bx, by) in [(x, y), (x + 1, y), (x, y + 1), (x + 1, y + 1)] {
+                    if bx >= ch.w
+                        || by >= ch.h
+                        || prep.owner((ch.y0 + by) * n + ch.x0 + bx) != Some(f)
+                    {
+                        continue;
+                    }
+                    let i = by * ch.w + bx;
+                    acc.views[i] = acc.views[i].saturating_add(1);
+                    if acc.best_w[i] == 0.0 {
+                        acc.best_w[i] = COARSE_SEEN;
+                    }
+                }
+                let m = mask_of(wt);
+                layer.splat(x, y, c, m, 4.0);
+                any_mask |= m > 0.0;
+            });
+            continue;
+        }
+        prep.sample_face(ph, f, 0, n, None, |x, y, c, wt| {
             let (x, y) = (x - ch.x0, y - ch.y0);
-            let m = match mopts.masks {
-                Masks::Paper => f32::from(in_mask),
-                _ if reference > 0.0 => (wt / reference).min(1.0),
-                _ => 1.0,
-            };
+            let m = mask_of(wt);
             let i = y * ch.w + x;
             acc.views[i] = acc.views[i].saturating_add(1);
             // Photographs come in order, so ties keep the first: deterministic.
@@ -915,7 +992,7 @@ fn add_photo(
                 }
                 avg[i][3] += wt;
             }
-            layer.splat(x, y, c, m);
+            layer.splat(x, y, c, m, 1.0);
             any_mask |= m > 0.0;
             if (winner_mode && wins) || (!winner_mode && m > 0.0) {
                 fine.push((x as u32, y as u32, c, m));
@@ -948,7 +1025,7 @@ fn add_complement(
     // No photograph's mask covers the texel (best-view masks are positive exactly where a
     // view weight is). Decided before the layer adds to the level-0 sums.
     let uncovered: Vec<bool> = if winner_mode {
-        acc.best_w.iter().map(|&b| b <= 0.0).collect()
+        acc.best_w.iter().map(|&b| b == 0.0).collect()
     } else {
         acc.den[0].iter().map(|&d| d <= 0.0).collect()
     };
@@ -975,7 +1052,7 @@ fn add_complement(
             if let Some(c) = colour(x, y) {
                 let m = f32::from(uncovered[y * ch.w + x]);
                 any |= m > 0.0;
-                layer.splat(x, y, c, m);
+                layer.splat(x, y, c, m, 1.0);
             }
         }
     }
@@ -1057,7 +1134,7 @@ mod tests {
             let mut layer = Layer::new((ox, oy), (pw, ph), acc.sizes(), 0.4);
             for y in y0..y1 {
                 for x in x0..x1 {
-                    layer.splat(x, y, colours[y * w + x], 1.0);
+                    layer.splat(x, y, colours[y * w + x], 1.0, 1.0);
                 }
             }
             layer.reduce();
@@ -1094,7 +1171,7 @@ mod tests {
             let mut layer = Layer::new((0, 0), (w, h), acc.sizes(), 0.4);
             for y in 0..h {
                 for x in 0..w {
-                    layer.splat(x, y, colours[y * w + x], 1.0);
+                    layer.splat(x, y, colours[y * w + x], 1.0, 1.0);
                 }
             }
             layer.reduce();

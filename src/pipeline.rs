@@ -311,6 +311,10 @@ pub fn texture(
                 max_hole,
                 opts.resample.gutter_fill,
             )?;
+            // Restored texels meet at chart borders without having seen each other.
+            if opts.merge.merge == merge::Merge::Multiband && opts.merge.level_seams {
+                merge::relevel(&m, &mut resampled, opts.resample.gutter_fill)?;
+            }
             progress.finish();
             stages.push(stage_since("restore", &mut t));
             Some(r)

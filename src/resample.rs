@@ -110,6 +110,8 @@ pub struct ResampleStats {
     pub cpu_seconds_sampling: f64,
     /// Chart-border levelling after a multiband merge, if it ran.
     pub seam_levelling: Option<crate::level::LevelStats>,
+    /// The same run again on the restored atlas ([`crate::merge::relevel`]), if it ran.
+    pub seam_levelling_after_restore: Option<crate::level::LevelStats>,
 }
 
 /// The resampled atlas.
@@ -479,7 +481,8 @@ struct PhotoPyramid<'a> {
 }
 
 impl<'a> PhotoPyramid<'a> {
-    fn new(base: &'a Rgb32FImage, levels: usize) -> Self {
+    /// The levels below `base`, at most `levels`.
+    fn levels_of(base: &Rgb32FImage, levels: usize) -> Vec<Rgb32FImage> {
         let mut out: Vec<Rgb32FImage> = Vec::new();
         for _ in 0..levels {
             let prev = out.last().unwrap_or(base);
@@ -503,7 +506,7 @@ impl<'a> PhotoPyramid<'a> {
                 });
             out.push(Rgb32FImage::from_raw(nw, nh, buf).expect("sized nw*nh*3"));
         }
-        PhotoPyramid { base, levels: out }
+        out
     }
 
     fn level(&self, l: usize) -> &Rgb32FImage {
@@ -567,6 +570,14 @@ pub(crate) struct Prepared<'a> {
     mean_edge: f64,
     robust: bool,
     identity: bool,
+}
+
+/// What [`Prepared::photo_setup`] computes for a photograph.
+pub(crate) struct PhotoSetup {
+    depth: Option<DepthMap>,
+    levels: Vec<Rgb32FImage>,
+    /// Seconds it took.
+    pub(crate) seconds: f64,
 }
 
 /// One photograph ready to be sampled: its depth map and mip pyramid.
@@ -658,15 +669,44 @@ impl<'a> Prepared<'a> {
         rgb: &'a Rgb32FImage,
         mask: Option<&'a GrayImage>,
     ) -> PhotoSampler<'a> {
+        let setup = self.photo_setup(photos, pi, rgb);
+        self.photo_with(photos, pi, rgb, mask, setup)
+    }
+
+    /// The part of [`Prepared::photo`] that takes time (depth map, mip levels), owned, so
+    /// that it can run beside the work on the previous photograph.
+    pub(crate) fn photo_setup(&self, photos: &[Photo], pi: usize, rgb: &Rgb32FImage) -> PhotoSetup {
         let view = &photos[pi].view;
+        let t = std::time::Instant::now();
         let depth = self.robust.then(|| {
             DepthMap::render(self.mesh, view, self.binding.options.depth_resolution).eroded(1)
         });
+        let levels = PhotoPyramid::levels_of(rgb, if self.robust { 8 } else { 0 });
+        PhotoSetup {
+            depth,
+            levels,
+            seconds: t.elapsed().as_secs_f64(),
+        }
+    }
+
+    /// [`Prepared::photo`] from its `setup`.
+    pub(crate) fn photo_with(
+        &self,
+        photos: &'a [Photo],
+        pi: usize,
+        rgb: &'a Rgb32FImage,
+        mask: Option<&'a GrayImage>,
+        setup: PhotoSetup,
+    ) -> PhotoSampler<'a> {
+        let view = &photos[pi].view;
         PhotoSampler {
             index: pi,
             view,
-            depth,
-            pyramid: PhotoPyramid::new(rgb, if self.robust { 8 } else { 0 }),
+            depth: setup.depth,
+            pyramid: PhotoPyramid {
+                base: rgb,
+                levels: setup.levels,
+            },
             mask,
             centre: view.pose.center(),
             focal: focal_px(view),
@@ -676,12 +716,16 @@ impl<'a> Prepared<'a> {
     /// Samples photograph `ph` at every texel face `f` owns in rows `y0..y1`, calling
     /// `emit(x, y, colour, weight)` for each texel the photograph sees (gain-corrected colour;
     /// weight `<N, V>` for the paper, projected area for robust).
+    /// With `coarse` = Some((x, y)), only the texels at even offsets from (x, y) are sampled,
+    /// each over twice the footprint (standing for the 2 x 2 texels from it).
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn sample_face(
         &self,
         ph: &PhotoSampler,
         f: u32,
         y0: usize,
         y1: usize,
+        coarse: Option<(usize, usize)>,
         mut emit: impl FnMut(usize, usize, [f32; 3], f32),
     ) {
         let n = self.map.size;
@@ -719,8 +763,15 @@ impl<'a> Prepared<'a> {
         } else {
             nrm.map(|nv| self.binding.gains.factor(pi, &nv))
         };
-        for y in r.rows.0.max(y0)..=r.rows.1.min(y1 - 1) {
-            for x in r.cols.0..=r.cols.1 {
+        let (step, (gx, gy)) = match coarse {
+            Some(g) => (2, g),
+            None => (1, (0, 0)),
+        };
+        let (ya, xa) = (r.rows.0.max(y0), r.cols.0);
+        // The first row and column on the grid.
+        let (ya, xa) = (ya + ((ya ^ gy) & (step - 1)), xa + ((xa ^ gx) & (step - 1)));
+        for y in (ya..=r.rows.1.min(y1 - 1)).step_by(step) {
+            for x in (xa..=r.cols.1).step_by(step) {
                 if self.map.owner[y * n + x] != f {
                     continue;
                 }
@@ -766,7 +817,7 @@ impl<'a> Prepared<'a> {
                     if z > d.at(&px) as f64 + tol {
                         continue;
                     }
-                    let footprint = r.texel_len * ph.focal / z;
+                    let footprint = step as f64 * r.texel_len * ph.focal / z;
                     let area = cos * (ph.focal * self.mean_edge / z).powi(2);
                     let w = if bind_opts.weight_power == 1.0 {
                         area
@@ -843,6 +894,7 @@ impl<'a> Prepared<'a> {
             seconds_texels: seconds.1,
             cpu_seconds_sampling: 0.0,
             seam_levelling: None,
+            seam_levelling_after_restore: None,
         };
         Resampled {
             color: Rgb32FImage::from_raw(n as u32, n as u32, color).expect("sized n*n*3"),
@@ -854,6 +906,22 @@ impl<'a> Prepared<'a> {
             stats,
         }
     }
+}
+
+/// Which face owns each texel of a `size` x `size` atlas (row-major, `u32::MAX` for none)
+/// and the texel rows and columns (inclusive) each face may own: the rasterisation
+/// resampling uses, for stages that run after it.
+pub(crate) type FaceRects = Vec<Option<((usize, usize), (usize, usize))>>;
+
+/// See [`FaceRects`].
+pub(crate) fn texel_owners(mesh: &Mesh, size: u32) -> Result<(Vec<u32>, FaceRects)> {
+    let map = TexelMap::new(mesh, size)?;
+    let rects = map
+        .faces
+        .iter()
+        .map(|r| r.as_ref().map(|r| (r.rows, r.cols)))
+        .collect();
+    Ok((map.owner, rects))
 }
 
 /// No photograph (in [`Resampled::best_photo`]).
@@ -913,7 +981,7 @@ pub fn resample(
                     if !prep.samples(f as usize, photo) {
                         continue;
                     }
-                    prep.sample_face(&ph, f, y0, y1, |x, y, c, w| {
+                    prep.sample_face(&ph, f, y0, y1, None, |x, y, c, w| {
                         let i = (y - y0) * n + x;
                         let a = &mut acc[i];
                         // Photographs come in order, so ties keep the first: deterministic.
@@ -972,6 +1040,19 @@ pub fn resample(
         opts,
         (seconds_photo_setup, seconds_texels),
     ))
+}
+
+/// Fills `res`'s gutter again from its current chart colours (after a stage changed them),
+/// `width` texels deep.
+pub(crate) fn refill_gutter(res: &mut Resampled, width: u32) {
+    let n = res.color.width() as usize;
+    for s in res.source.iter_mut() {
+        if *s == TexelSource::Gutter as u8 {
+            *s = TexelSource::Empty as u8;
+        }
+    }
+    let color: &mut [f32] = &mut res.color;
+    extend_into_gutter(color, &mut res.source, n, width);
 }
 
 /// Extends chart colours `width` texels into the empty texels around them, ring by ring (each

@@ -653,13 +653,8 @@ pub fn restore_atlas(
     report.seconds = wall.elapsed().as_secs_f64();
     report.texels_left_large = left_large;
     report.texels_left_unreachable = texels_left_unreachable;
-    for s in res.source.iter_mut() {
-        if *s == S::Gutter as u8 {
-            *s = S::Empty as u8;
-        }
-    }
-    crate::resample::extend_into_gutter(&mut data, &mut res.source, n, gutter_fill);
     res.color = image::Rgb32FImage::from_raw(n as u32, n as u32, data).expect("n * n * 3 values");
+    crate::resample::refill_gutter(res, gutter_fill);
     Ok(report)
 }
 
