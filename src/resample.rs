@@ -108,6 +108,9 @@ pub struct ResampleStats {
     pub seconds_texels: f64,
     /// Multiband merging: thread-seconds of that spent sampling texels (the rest is pyramids).
     pub cpu_seconds_sampling: f64,
+    /// Multiband merging: seconds of the complement layers, the collapse of every chart and
+    /// its copy into the atlas.
+    pub seconds_collapse: f64,
     /// Chart-border levelling after a multiband merge, if it ran.
     pub seam_levelling: Option<crate::level::LevelStats>,
     /// The same run again on the restored atlas ([`crate::merge::relevel`]), if it ran.
@@ -893,6 +896,7 @@ impl<'a> Prepared<'a> {
             seconds_photo_setup: seconds.0,
             seconds_texels: seconds.1,
             cpu_seconds_sampling: 0.0,
+            seconds_collapse: 0.0,
             seam_levelling: None,
             seam_levelling_after_restore: None,
         };

@@ -305,6 +305,55 @@ fn multiband_hides_view_seams_that_winner_take_all_shows() {
     assert!(ratios[2] < ratios[1], "{ratios:?}");
 }
 
+/// Sampling all but the two heaviest photographs of a face at a quarter of the texels (they
+/// only enter the coarser bands) changes the texture by little and loses almost no seen texel.
+#[test]
+fn coarse_sampling_of_the_lighter_views_keeps_the_texture() {
+    let s = torus();
+    let (mesh, _) = s.mesh.as_ref().unwrap();
+    let mut runs = Vec::new();
+    for full_views in [0, 2] {
+        let mut opts = TextureOptions::default();
+        opts.atlas.pack.size = 1024;
+        opts.merge.full_views = full_views;
+        runs.push(texture(mesh, &s.photos, &opts, &Silent).unwrap());
+    }
+    let (all, coarse) = (&runs[0].resampled, &runs[1].resampled);
+    let photos = |r: &scantex::resample::Resampled| {
+        r.source
+            .iter()
+            .filter(|&&s| s == TexelSource::Photos as u8)
+            .count() as f64
+    };
+    let (na, nc) = (photos(all), photos(coarse));
+    assert!(
+        nc > 0.995 * na && nc <= na * 1.0001,
+        "{nc} of {na} texels seen"
+    );
+    // PSNR between the two over the texels both saw.
+    let (mut se, mut cnt) = (0f64, 0usize);
+    for (i, (sa, sc)) in all.source.iter().zip(&coarse.source).enumerate() {
+        if *sa == TexelSource::Photos as u8 && *sc == TexelSource::Photos as u8 {
+            for k in 0..3 {
+                let d = all.color.as_raw()[3 * i + k] - coarse.color.as_raw()[3 * i + k];
+                se += (d as f64).powi(2);
+            }
+            cnt += 3;
+        }
+    }
+    let psnr = 10.0 * (1.0 / (se / cnt as f64)).log10();
+    assert!(
+        psnr > 35.0,
+        "{psnr} dB between all views and coarse lighter views"
+    );
+    assert!(psnr < 100.0, "the option changed nothing: {psnr} dB");
+    let (sa, sc) = (&runs[0].report.seams, &runs[1].report.seams);
+    assert!(
+        sc.view_boundary_ratio < sa.view_boundary_ratio * 1.05,
+        "{sa:?} {sc:?}"
+    );
+}
+
 /// Deep per-chart pyramids open seams where charts meet; seam levelling closes them.
 #[test]
 fn seam_levelling_closes_chart_borders_that_deep_pyramids_open() {
