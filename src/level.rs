@@ -365,14 +365,25 @@ fn conjugate_gradient(
     max_iter: u32,
 ) -> (Vec<V3>, u32) {
     let nu = rhs.len();
+    // Sums over fixed chunks, added in order: parallel and still the same bits every run.
+    const CHUNK: usize = 4096;
     let dot = |a: &[V3], b: &[V3]| -> V3 {
-        let mut s = [0f64; 3];
-        for (x, y) in a.iter().zip(b) {
-            for c in 0..3 {
-                s[c] += x[c] * y[c];
-            }
-        }
-        s
+        let parts: Vec<V3> = a
+            .par_chunks(CHUNK)
+            .zip(b.par_chunks(CHUNK))
+            .map(|(a, b)| {
+                let mut s = [0f64; 3];
+                for (x, y) in a.iter().zip(b) {
+                    for c in 0..3 {
+                        s[c] += x[c] * y[c];
+                    }
+                }
+                s
+            })
+            .collect();
+        parts
+            .iter()
+            .fold([0f64; 3], |s, p| std::array::from_fn(|c| s[c] + p[c]))
     };
     // r = rhs - A x0.
     let mut x = x0;
@@ -381,8 +392,12 @@ fn conjugate_gradient(
     for (ri, bi) in r.iter_mut().zip(rhs) {
         *ri = std::array::from_fn(|c| bi[c] - ri[c]);
     }
-    let precondition =
-        |r: &[V3]| -> Vec<V3> { r.iter().zip(diag).map(|(v, &d)| v.map(|e| e / d)).collect() };
+    let precondition = |r: &[V3]| -> Vec<V3> {
+        r.par_iter()
+            .zip(diag)
+            .map(|(v, &d)| v.map(|e| e / d))
+            .collect()
+    };
     let mut z = precondition(&r);
     let mut p = z.clone();
     let mut rz = dot(&r, &z);
@@ -397,20 +412,23 @@ fn conjugate_gradient(
         apply(&p, &mut ap);
         let pap = dot(&p, &ap);
         let alpha: V3 = std::array::from_fn(|c| if pap[c] > 0.0 { rz[c] / pap[c] } else { 0.0 });
-        for i in 0..nu {
-            for c in 0..3 {
-                x[i][c] += alpha[c] * p[i][c];
-                r[i][c] -= alpha[c] * ap[i][c];
-            }
-        }
+        x.par_iter_mut()
+            .zip(r.par_iter_mut())
+            .zip(p.par_iter().zip(&ap))
+            .for_each(|((xi, ri), (pi, api))| {
+                for c in 0..3 {
+                    xi[c] += alpha[c] * pi[c];
+                    ri[c] -= alpha[c] * api[c];
+                }
+            });
         z = precondition(&r);
         let rz_new = dot(&r, &z);
         let beta: V3 = std::array::from_fn(|c| if rz[c] > 0.0 { rz_new[c] / rz[c] } else { 0.0 });
-        for i in 0..nu {
+        p.par_iter_mut().zip(&z).for_each(|(pi, zi)| {
             for c in 0..3 {
-                p[i][c] = z[i][c] + beta[c] * p[i][c];
+                pi[c] = zi[c] + beta[c] * pi[c];
             }
-        }
+        });
         rz = rz_new;
         it += 1;
     }
