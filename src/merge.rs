@@ -960,11 +960,15 @@ fn add_photo(
             prep.sample_face(ph, f, 0, n, Some((ch.x0, ch.y0)), |x, y, c, wt| {
                 let (x, y) = (x - ch.x0, y - ch.y0);
                 for (bx, by) in [(x, y), (x + 1, y), (x, y + 1), (x + 1, y + 1)] {
-                    if bx >= ch.w
-                        || by >= ch.h
-                        || prep.owner((ch.y0 + by) * n + ch.x0 + bx) != Some(f)
-                    {
+                    // Texels of any face this photograph samples (a neighbour's texels
+                    // whose own block anchor lies in this face); texels of other charts in
+                    // the rectangle are never copied out, so marking them is harmless.
+                    if bx >= ch.w || by >= ch.h {
                         continue;
+                    }
+                    match prep.owner((ch.y0 + by) * n + ch.x0 + bx) {
+                        Some(g) if g == f || prep.samples(g as usize, photo) => {}
+                        _ => continue,
                     }
                     let i = by * ch.w + bx;
                     acc.views[i] = acc.views[i].saturating_add(1);
