@@ -295,15 +295,7 @@ fn down_taps(x: usize, n: usize, k: &[f32; 5]) -> ([usize; 6], [f32; 6], usize) 
 #[inline]
 fn up_taps(x: usize, n: usize, k: &[f32; 5]) -> ([usize; 3], [f32; 3], usize) {
     let j = (x / 2) as isize;
-    let u = |i: isize| -> usize {
-        if i < 0 {
-            1.min(n - 1)
-        } else if i as usize >= n {
-            n - 1
-        } else {
-            i as usize
-        }
-    };
+    let u = |i: isize| pyramid::up_src(i, n);
     if x.is_multiple_of(2) {
         (
             [u(j - 1), u(j), u(j + 1)],
@@ -312,6 +304,30 @@ fn up_taps(x: usize, n: usize, k: &[f32; 5]) -> ([usize; 3], [f32; 3], usize) {
         )
     } else {
         ([u(j), u(j + 1), 0], [2.0 * k[1], 2.0 * k[3], 0.0], 2)
+    }
+}
+
+/// Calls `f(index, weight)` for the products of the column taps `(xi, xw, xn)` and row taps
+/// `(yi, yw, yn)` (level coordinates) that fall inside a `w` x `h` buffer whose origin is
+/// (`bx`, `by`) on that level.
+#[inline(always)]
+fn for_taps_in<const NX: usize, const NY: usize>(
+    (xi, xw, xn): ([usize; NX], [f32; NX], usize),
+    (yi, yw, yn): ([usize; NY], [f32; NY], usize),
+    (bx, by): (usize, usize),
+    (w, h): (usize, usize),
+    mut f: impl FnMut(usize, f32),
+) {
+    for b in 0..yn {
+        let Some(yy) = yi[b].checked_sub(by).filter(|&v| v < h) else {
+            continue;
+        };
+        for a in 0..xn {
+            let Some(xx) = xi[a].checked_sub(bx).filter(|&v| v < w) else {
+                continue;
+            };
+            f(yy * w + xx, xw[a] * yw[b]);
+        }
     }
 }
 
@@ -375,20 +391,15 @@ impl Layer {
             return;
         };
         let (nw, nh) = self.chart[0];
-        let (xi, xw, xn) = down_taps(x, nw, &self.k);
-        let (yi, yw, yn) = down_taps(y, nh, &self.k);
-        let (bx, by) = (self.ox / 2, self.oy / 2);
         let mask = &mut self.m[0];
-        for b in 0..yn {
-            let Some(yy) = yi[b].checked_sub(by).filter(|&v| v < g.h) else {
-                continue;
-            };
-            for a in 0..xn {
-                let Some(xx) = xi[a].checked_sub(bx).filter(|&v| v < g.w) else {
-                    continue;
-                };
-                let wt = xw[a] * yw[b] * w;
-                let i = yy * g.w + xx;
+        let (gw, gh) = (g.w, g.h);
+        for_taps_in(
+            down_taps(x, nw, &self.k),
+            down_taps(y, nh, &self.k),
+            (self.ox / 2, self.oy / 2),
+            (gw, gh),
+            |i, kw| {
+                let wt = kw * w;
                 let d = &mut g.d[4 * i..4 * i + 4];
                 d[0] += wt * c[0];
                 d[1] += wt * c[1];
@@ -397,8 +408,8 @@ impl Layer {
                 if m > 0.0 {
                     mask[i] += wt * m;
                 }
-            }
-        }
+            },
+        );
     }
 
     /// Builds levels 2 and up from level 1 (separable, reflect-101 at the chart's edges, zero
@@ -423,25 +434,18 @@ impl Layer {
     fn expanded(&self, l: usize, x: usize, y: usize) -> Option<[f32; 3]> {
         let g = &self.g[l];
         let (nw, nh) = self.chart[l + 1];
-        let (bx, by) = (self.ox >> (l + 1), self.oy >> (l + 1));
-        let (xi, xw, xn) = up_taps(x, nw, &self.k);
-        let (yi, yw, yn) = up_taps(y, nh, &self.k);
         let mut s = [0f32; 4];
-        for b in 0..yn {
-            let Some(yy) = yi[b].checked_sub(by).filter(|&v| v < g.h) else {
-                continue;
-            };
-            for a in 0..xn {
-                let Some(xx) = xi[a].checked_sub(bx).filter(|&v| v < g.w) else {
-                    continue;
-                };
-                let wt = xw[a] * yw[b];
-                let i = 4 * (yy * g.w + xx);
-                for (sk, v) in s.iter_mut().zip(&g.d[i..i + 4]) {
+        for_taps_in(
+            up_taps(x, nw, &self.k),
+            up_taps(y, nh, &self.k),
+            (self.ox >> (l + 1), self.oy >> (l + 1)),
+            (g.w, g.h),
+            |i, wt| {
+                for (sk, v) in s.iter_mut().zip(&g.d[4 * i..4 * i + 4]) {
                     *sk += wt * v;
                 }
-            }
-        }
+            },
+        );
         (s[3] > EPS).then(|| [s[0] / s[3], s[1] / s[3], s[2] / s[3]])
     }
 

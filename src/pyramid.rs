@@ -136,7 +136,7 @@ pub fn reduce(src: &Plane, a: f32) -> Plane {
 /// Source index of an expansion's neighbour `j` (may be -1 or `n`): reflect-101 on the doubled
 /// grid makes source -1 read 1 and source `n` read `n - 1`.
 #[inline]
-fn up_src(j: isize, n: usize) -> usize {
+pub(crate) fn up_src(j: isize, n: usize) -> usize {
     if j < 0 {
         1.min(n - 1)
     } else if j as usize >= n {

@@ -14,7 +14,7 @@
 //! The atlas is processed in bands of rows in parallel; photographs one at a time, so memory is
 //! the atlas's accumulators plus two decoded photographs.
 
-use crate::bind::{consistent, depth_tolerance, for_each_photo, Binding, Consistency, Method};
+use crate::bind::{consistent, depth_tolerance, for_each_photo_with, Binding, Consistency, Method};
 use crate::camera::PosedCamera;
 use crate::depth::{focal_px, DepthMap};
 use crate::error::{Error, Result};
@@ -664,20 +664,9 @@ impl<'a> Prepared<'a> {
         self.map.faces[f].as_ref().map(|r| (r.rows, r.cols))
     }
 
-    /// Depth map and pyramid of photograph `pi` (decoded as `rgb`, with its mask).
-    pub(crate) fn photo(
-        &self,
-        photos: &'a [Photo],
-        pi: usize,
-        rgb: &'a Rgb32FImage,
-        mask: Option<&'a GrayImage>,
-    ) -> PhotoSampler<'a> {
-        let setup = self.photo_setup(photos, pi, rgb);
-        self.photo_with(photos, pi, rgb, mask, setup)
-    }
-
-    /// The part of [`Prepared::photo`] that takes time (depth map, mip levels), owned, so
-    /// that it can run beside the work on the previous photograph.
+    /// The part of getting photograph `pi` (decoded as `rgb`) ready to sample that takes
+    /// time: its depth map and mip levels, owned, so that it can run beside the work on the
+    /// previous photograph.
     pub(crate) fn photo_setup(&self, photos: &[Photo], pi: usize, rgb: &Rgb32FImage) -> PhotoSetup {
         let view = &photos[pi].view;
         let t = std::time::Instant::now();
@@ -692,7 +681,7 @@ impl<'a> Prepared<'a> {
         }
     }
 
-    /// [`Prepared::photo`] from its `setup`.
+    /// Photograph `pi` (decoded as `rgb`, with its mask) ready to sample, from its `setup`.
     pub(crate) fn photo_with(
         &self,
         photos: &'a [Photo],
@@ -967,11 +956,12 @@ pub fn resample(
     let mut best = vec![NO_PHOTO; n * n];
     let (mut seconds_photo_setup, mut seconds_texels) = (0.0, 0.0);
     progress.start("resampling", photos.len() as u64);
-    for_each_photo(photos, progress, |pi, rgb, mask| {
-        let setup = std::time::Instant::now();
-        let ph = prep.photo(photos, pi, rgb, mask);
+    // The next photograph's depth map and mip levels are built while this one is sampled.
+    let setup = |pi: usize, rgb: &Rgb32FImage| prep.photo_setup(photos, pi, rgb);
+    for_each_photo_with(photos, progress, setup, |pi, rgb, mask, setup| {
+        seconds_photo_setup += setup.seconds;
+        let ph = prep.photo_with(photos, pi, rgb, mask, setup);
         let photo = pi as u32;
-        seconds_photo_setup += setup.elapsed().as_secs_f64();
         let texels = std::time::Instant::now();
         acc.par_chunks_mut(BAND * n)
             .zip(views.par_chunks_mut(BAND * n))
