@@ -44,6 +44,11 @@ pub const REACH: f64 = 16.0;
 /// squares.
 pub const ROBUST_SCALE: f64 = 0.02;
 
+/// Relative residual at which a solve stops. On the corset 1e-3 takes 47 iterations where
+/// 1e-5 took 263, and the levelled atlas differs by at most 2/255 (1% of values by 1); the
+/// border step after levelling is the same to 1e-7 (docs/decisions.md).
+const TOLERANCE: f64 = 1e-3;
+
 /// Reweighted solves after the first.
 const REWEIGHTS: usize = 3;
 
@@ -264,7 +269,7 @@ pub fn level_seams(
             diag[u as usize] += smoothness;
             diag[v as usize] += smoothness;
         }
-        conjugate_gradient(apply, &diag, &rhs, x0, 1e-5, 5000)
+        conjugate_gradient(apply, &diag, &rhs, x0, TOLERANCE, 5000)
     };
     let residual = |smp: &Sample, g: &[V3]| -> f64 {
         let a = smp.coef();
