@@ -30,22 +30,24 @@ impl DepthMap {
     /// Renders the depth of `mesh` seen by `view`, at most `max_side` pixels on the longer side.
     /// A triangle with a corner that cannot be imaged (behind the camera) is left out.
     pub fn render(mesh: &Mesh, view: &PosedCamera, max_side: u32) -> Self {
+        Self::render_projected(mesh, view, &project_vertices(mesh, view), max_side)
+    }
+
+    /// [`DepthMap::render`] from the vertices already projected by [`project_vertices`].
+    pub fn render_projected(
+        mesh: &Mesh,
+        view: &PosedCamera,
+        projected: &[Option<[f64; 3]>],
+        max_side: u32,
+    ) -> Self {
         let (pw, ph) = (view.camera.width, view.camera.height);
         let scale = (max_side as f64 / pw.max(ph) as f64).min(1.0);
         let w = ((pw as f64 * scale).round() as u32).max(1);
         let h = ((ph as f64 * scale).round() as u32).max(1);
         // Projected corners: depth pixel coordinates (continuous, pixel centres at +0.5) and z.
-        let proj: Vec<Option<[f64; 3]>> = mesh
-            .positions
+        let proj: Vec<Option<[f64; 3]>> = projected
             .par_iter()
-            .map(|p| {
-                let c = view.pose.transform(p);
-                if c.z <= 0.0 {
-                    return None;
-                }
-                let px = view.camera.project(&c)?;
-                Some([px.x * scale, px.y * scale, c.z])
-            })
+            .map(|q| q.map(|[x, y, z]| [x * scale, y * scale, z]))
             .collect();
         // Triangles that land in the image, with their row range, so each band scans few.
         let tris: Vec<([[f64; 3]; 3], usize, usize)> = mesh
@@ -181,6 +183,22 @@ impl DepthMap {
         }
         out
     }
+}
+
+/// Every vertex of `mesh` projected into `view`: photo pixel coordinates (centres at +0.5) and
+/// camera-frame depth, `None` behind the camera or outside the model's domain.
+pub fn project_vertices(mesh: &Mesh, view: &PosedCamera) -> Vec<Option<[f64; 3]>> {
+    mesh.positions
+        .par_iter()
+        .map(|p| {
+            let c = view.pose.transform(p);
+            if c.z <= 0.0 {
+                return None;
+            }
+            let px = view.camera.project(&c)?;
+            Some([px.x, px.y, c.z])
+        })
+        .collect()
 }
 
 /// Calls `put(x, y, depth)` for every pixel centre of rows `r0..=r1` inside the projected

@@ -915,7 +915,7 @@ fn add_photo(
     cpu_sampling: &AtomicU64,
 ) {
     let photo = ph.index as u32;
-    if !ch.faces.iter().any(|&f| prep.samples(f as usize, photo)) {
+    if !ch.faces.iter().any(|&f| ph.samples(f)) {
         return;
     }
     let t = std::time::Instant::now();
@@ -924,7 +924,7 @@ fn add_photo(
     // that level's grid.
     let (mut bx0, mut by0, mut bx1, mut by1) = (usize::MAX, usize::MAX, 0, 0);
     for &f in &ch.faces {
-        if prep.samples(f as usize, photo) {
+        if ph.samples(f) {
             let ((r0, r1), (c0, c1)) = prep.face_rect(f as usize).expect("chart faces rasterise");
             (bx0, by0) = (bx0.min(c0 - ch.x0), by0.min(r0 - ch.y0));
             (bx1, by1) = (bx1.max(c1 + 1 - ch.x0), by1.max(r1 + 1 - ch.y0));
@@ -942,7 +942,7 @@ fn add_photo(
     let mut any_mask = false;
     let n = prep.size();
     for &f in &ch.faces {
-        if !prep.samples(f as usize, photo) {
+        if !ph.samples(f) {
             continue;
         }
         let in_mask = match ring {
@@ -971,7 +971,7 @@ fn add_photo(
                         continue;
                     }
                     match prep.owner((ch.y0 + by) * n + ch.x0 + bx) {
-                        Some(g) if g == f || prep.samples(g as usize, photo) => {}
+                        Some(g) if g == f || ph.samples(g) => {}
                         _ => continue,
                     }
                     let i = by * ch.w + bx;

@@ -174,6 +174,9 @@ impl Resampled {
 pub(crate) struct Common {
     offsets: Vec<u32>,
     photos: Vec<u32>,
+    /// Per face: some photograph is valid at all three vertices (before any face check or
+    /// limit), the paper's green test.
+    all_three: Vec<bool>,
 }
 
 impl Common {
@@ -188,7 +191,7 @@ impl Common {
         any_vertex: bool,
         max_views: usize,
     ) -> Self {
-        let lists: Vec<Vec<u32>> = mesh
+        let lists: Vec<(Vec<u32>, bool)> = mesh
             .faces
             .par_iter()
             .map(|f| {
@@ -207,6 +210,7 @@ impl Common {
                         }
                     }
                 }
+                let all_three = found.iter().any(|e| e.2 == 3);
                 found.retain(|e| any_vertex || e.2 == 3);
                 found.sort_unstable_by_key(|e| e.0);
                 if let Some(t) = face_check {
@@ -222,17 +226,23 @@ impl Common {
                     found.truncate(max_views);
                     found.sort_unstable_by_key(|e| e.0);
                 }
-                found.into_iter().map(|e| e.0).collect()
+                (found.into_iter().map(|e| e.0).collect(), all_three)
             })
             .collect();
         let mut offsets = Vec::with_capacity(lists.len() + 1);
         offsets.push(0u32);
         let mut photos = Vec::new();
-        for l in lists {
+        let mut all_three = Vec::with_capacity(lists.len());
+        for (l, a) in lists {
             photos.extend(l);
             offsets.push(photos.len() as u32);
+            all_three.push(a);
         }
-        Common { offsets, photos }
+        Common {
+            offsets,
+            photos,
+            all_three,
+        }
     }
 
     pub(crate) fn of(&self, f: usize) -> &[u32] {
@@ -249,7 +259,7 @@ pub fn classify(mesh: &Mesh, b: &Binding) -> Vec<FaceClass> {
 fn classes_from(mesh: &Mesh, b: &Binding, common: &Common) -> Vec<FaceClass> {
     (0..mesh.num_faces())
         .map(|f| {
-            if !common.of(f).is_empty() {
+            if common.all_three[f] {
                 FaceClass::Green
             } else if mesh.faces[f].iter().all(|v| !b.views(v.idx()).is_empty()) {
                 FaceClass::Blue
@@ -285,9 +295,15 @@ pub fn fill_vertex_colors(
     let mut col: Vec<Option<[f32; 3]>> = colors.to_vec();
     let mut per_round = [0u64; 5];
     for (round, p) in [0.8, 0.6, 0.4, 0.2, 0.0].into_iter().enumerate() {
+        // Each round starts from every uncoloured vertex; after a pass only the neighbours of
+        // what it coloured can have become eligible (a vertex's test reads its ring only).
+        let mut candidates: Vec<u32> = (0..nv as u32)
+            .filter(|&v| col[v as usize].is_none())
+            .collect();
         loop {
-            let updates: Vec<(usize, [f32; 3])> = (0..nv)
-                .into_par_iter()
+            let updates: Vec<(usize, [f32; 3])> = candidates
+                .par_iter()
+                .map(|&v| v as usize)
                 .filter(|&v| col[v].is_none() && !nbr[v].is_empty())
                 .filter_map(|v| {
                     let coloured: Vec<[f32; 3]> =
@@ -307,9 +323,16 @@ pub fn fill_vertex_colors(
                 break;
             }
             per_round[round] += updates.len() as u64;
-            for (v, c) in updates {
+            for &(v, c) in &updates {
                 col[v] = Some(c);
             }
+            candidates = updates
+                .iter()
+                .flat_map(|&(v, _)| nbr[v].iter().copied())
+                .filter(|&u| col[u as usize].is_none())
+                .collect();
+            candidates.sort_unstable();
+            candidates.dedup();
         }
     }
     let known: Vec<[f32; 3]> = col.iter().flatten().copied().collect();
@@ -532,8 +555,13 @@ impl<'a> PhotoPyramid<'a> {
         let (fx, fy) = ((x - x0) as f32, (y - y0) as f32);
         let cl = |v: f64, n: u32| (v.max(0.0) as u32).min(n - 1);
         let (xa, xb, ya, yb) = (cl(x0, w), cl(x0 + 1.0, w), cl(y0, h), cl(y0 + 1.0, h));
-        let (p00, p10) = (img.get_pixel(xa, ya).0, img.get_pixel(xb, ya).0);
-        let (p01, p11) = (img.get_pixel(xa, yb).0, img.get_pixel(xb, yb).0);
+        let raw: &[f32] = img.as_raw();
+        let at = |x: u32, y: u32| -> [f32; 3] {
+            let i = 3 * (y as usize * w as usize + x as usize);
+            [raw[i], raw[i + 1], raw[i + 2]]
+        };
+        let (p00, p10) = (at(xa, ya), at(xb, ya));
+        let (p01, p11) = (at(xa, yb), at(xb, yb));
         std::array::from_fn(|k| {
             let top = p00[k] + (p10[k] - p00[k]) * fx;
             let bot = p01[k] + (p11[k] - p01[k]) * fx;
@@ -579,6 +607,8 @@ pub(crate) struct Prepared<'a> {
 pub(crate) struct PhotoSetup {
     depth: Option<DepthMap>,
     levels: Vec<Rgb32FImage>,
+    projected: Vec<Option<[f64; 3]>>,
+    sampled: Vec<u64>,
     /// Seconds it took.
     pub(crate) seconds: f64,
 }
@@ -588,10 +618,22 @@ pub(crate) struct PhotoSampler<'a> {
     pub(crate) index: usize,
     view: &'a PosedCamera,
     depth: Option<DepthMap>,
+    /// Every vertex projected: photo pixel and camera depth (shared with the depth map).
+    projected: Vec<Option<[f64; 3]>>,
+    /// Bit per face: whether the face samples this photograph ([`Prepared::samples`]).
+    sampled: Vec<u64>,
     pyramid: PhotoPyramid<'a>,
     mask: Option<&'a GrayImage>,
     centre: Point3<f64>,
     focal: f64,
+}
+
+impl PhotoSampler<'_> {
+    /// Whether face `f` samples this photograph.
+    #[inline]
+    pub(crate) fn samples(&self, f: u32) -> bool {
+        self.sampled[f as usize / 64] >> (f % 64) & 1 == 1
+    }
 }
 
 impl<'a> Prepared<'a> {
@@ -615,7 +657,6 @@ impl<'a> Prepared<'a> {
             && bind_opts.consistency == Consistency::Face)
             .then_some(bind_opts.consistency_threshold);
         let robust = bind_opts.method == Method::Robust;
-        let classes = classes_from(mesh, binding, &Common::new(mesh, binding, None, false, 0));
         // The paper samples the common photographs of green faces only; robust tries every
         // photograph valid at any vertex and lets the per-texel depth test decide.
         let common = Common::new(
@@ -625,6 +666,7 @@ impl<'a> Prepared<'a> {
             robust,
             if robust { opts.max_views } else { 0 },
         );
+        let classes = classes_from(mesh, binding, &common);
         let (vertex_colors, filled_per_round, vertices_unreachable) =
             fill_vertex_colors(mesh, &binding.vertex_colors());
         Ok(Prepared {
@@ -670,13 +712,28 @@ impl<'a> Prepared<'a> {
     pub(crate) fn photo_setup(&self, photos: &[Photo], pi: usize, rgb: &Rgb32FImage) -> PhotoSetup {
         let view = &photos[pi].view;
         let t = std::time::Instant::now();
+        let projected = crate::depth::project_vertices(self.mesh, view);
         let depth = self.robust.then(|| {
-            DepthMap::render(self.mesh, view, self.binding.options.depth_resolution).eroded(1)
+            let res = self.binding.options.depth_resolution;
+            DepthMap::render_projected(self.mesh, view, &projected, res).eroded(1)
         });
         let levels = PhotoPyramid::levels_of(rgb, if self.robust { 8 } else { 0 });
+        // One test per face here instead of a search per face and chart in the loops.
+        let photo = pi as u32;
+        let sampled = (0..self.mesh.num_faces())
+            .into_par_iter()
+            .step_by(64)
+            .map(|f0| {
+                (f0..(f0 + 64).min(self.mesh.num_faces()))
+                    .filter(|&f| self.samples(f, photo))
+                    .fold(0u64, |w, f| w | 1 << (f - f0))
+            })
+            .collect();
         PhotoSetup {
             depth,
             levels,
+            projected,
+            sampled,
             seconds: t.elapsed().as_secs_f64(),
         }
     }
@@ -695,6 +752,8 @@ impl<'a> Prepared<'a> {
             index: pi,
             view,
             depth: setup.depth,
+            projected: setup.projected,
+            sampled: setup.sampled,
             pyramid: PhotoPyramid {
                 base: rgb,
                 levels: setup.levels,
@@ -732,22 +791,23 @@ impl<'a> Prepared<'a> {
         // Per face: the vertices in the camera and, for triangles a few pixels across, an
         // affine map texel -> pixel (the perspective and distortion error over such a triangle
         // is far below a pixel); per-texel projection otherwise.
-        let cams: [Vector3<f64>; 3] = pos.map(|p| view.pose.transform(&p));
-        let affine = if cams.iter().all(|c| c.z > 0.0) {
-            match cams.map(|c| view.camera.project(&c)) {
-                [Some(a), Some(b), Some(c)]
-                    if (a - b).norm().max((b - c).norm()).max((c - a).norm()) < AFFINE_PX =>
-                {
+        let proj = fv.map(|v| ph.projected[v.idx()]);
+        let affine = match proj {
+            [Some(a), Some(b), Some(c)] => {
+                let q = [a, b, c].map(|p| Point2::new(p[0], p[1]));
+                let extent = (q[0] - q[1])
+                    .norm()
+                    .max((q[1] - q[2]).norm())
+                    .max((q[2] - q[0]).norm());
+                (extent < AFFINE_PX).then(|| {
                     let cos: [f64; 3] = std::array::from_fn(|k| {
                         let to_cam = ph.centre - pos[k];
                         nrm[k].dot(&to_cam) / to_cam.norm().max(1e-300)
                     });
-                    Some(([a, b, c], cos))
-                }
-                _ => None,
+                    (q, [a[2], b[2], c[2]], cos)
+                })
             }
-        } else {
-            None
+            _ => None,
         };
         // Gain corrections at the vertices, interpolated (the fields are smooth).
         let gain: [[f32; 3]; 3] = if self.identity {
@@ -769,9 +829,9 @@ impl<'a> Prepared<'a> {
                 }
                 let b = clamp_bary(r.bary(x, y));
                 let (px, z, cos) = match &affine {
-                    Some((q, cv)) => (
+                    Some((q, zs, cv)) => (
                         Point2::from(q[0].coords * b[0] + q[1].coords * b[1] + q[2].coords * b[2]),
-                        cams[0].z * b[0] + cams[1].z * b[1] + cams[2].z * b[2],
+                        zs[0] * b[0] + zs[1] * b[1] + zs[2] * b[2],
                         cv[0] * b[0] + cv[1] * b[1] + cv[2] * b[2],
                     ),
                     None => {
@@ -972,7 +1032,7 @@ pub fn resample(
                 let y0 = bi * BAND;
                 let y1 = y0 + acc.len() / n;
                 for &f in list {
-                    if !prep.samples(f as usize, photo) {
+                    if !ph.samples(f) {
                         continue;
                     }
                     prep.sample_face(&ph, f, y0, y1, None, |x, y, c, w| {
