@@ -798,7 +798,8 @@ fn multiband(
     progress.finish();
     // The complement layer, then collapse, a batch of charts at a time so that finished
     // charts' accumulators are freed as the atlas fills: largest first (their accumulators
-    // are the most memory), batches of at most COLLAPSE_BATCH chart texels.
+    // are the most memory), batches of at most COLLAPSE_BATCH chart texels or two charts,
+    // so that both cores work even while the largest charts go.
     let t_collapse = std::time::Instant::now();
     let mut color = vec![0f32; n * n * 3];
     let mut source = vec![TexelSource::Empty as u8; n * n];
@@ -812,7 +813,7 @@ fn multiband(
         let mut take = 0;
         let mut area = 0;
         while take < rest.len()
-            && (take == 0 || area + charts[rest[take]].w * charts[rest[take]].h <= COLLAPSE_BATCH)
+            && (take < 2 || area + charts[rest[take]].w * charts[rest[take]].h <= COLLAPSE_BATCH)
         {
             area += charts[rest[take]].w * charts[rest[take]].h;
             take += 1;
