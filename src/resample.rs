@@ -613,7 +613,8 @@ pub(crate) struct PhotoSetup {
     pub(crate) seconds: f64,
 }
 
-/// One photograph ready to be sampled: its depth map and mip pyramid.
+/// One photograph ready to be sampled: its projected vertices, depth map, mip pyramid and
+/// the faces that sample it.
 pub(crate) struct PhotoSampler<'a> {
     pub(crate) index: usize,
     view: &'a PosedCamera,
@@ -707,8 +708,8 @@ impl<'a> Prepared<'a> {
     }
 
     /// The part of getting photograph `pi` (decoded as `rgb`) ready to sample that takes
-    /// time: its depth map and mip levels, owned, so that it can run beside the work on the
-    /// previous photograph.
+    /// time: its projected vertices, depth map, mip levels and the faces that sample it,
+    /// owned, so that it can run beside the work on the previous photograph.
     pub(crate) fn photo_setup(&self, photos: &[Photo], pi: usize, rgb: &Rgb32FImage) -> PhotoSetup {
         let view = &photos[pi].view;
         let t = std::time::Instant::now();
@@ -788,9 +789,9 @@ impl<'a> Prepared<'a> {
         let fv = mesh.faces[f as usize];
         let pos: [Point3<f64>; 3] = std::array::from_fn(|k| mesh.positions[fv[k].idx()]);
         let nrm: [Vector3<f64>; 3] = std::array::from_fn(|k| self.normals[fv[k].idx()]);
-        // Per face: the vertices in the camera and, for triangles a few pixels across, an
-        // affine map texel -> pixel (the perspective and distortion error over such a triangle
-        // is far below a pixel); per-texel projection otherwise.
+        // Per face, from the photograph's projected vertices: for triangles a few pixels
+        // across, an affine map texel -> pixel (the perspective and distortion error over such
+        // a triangle is far below a pixel); per-texel projection otherwise.
         let proj = fv.map(|v| ph.projected[v.idx()]);
         let affine = match proj {
             [Some(a), Some(b), Some(c)] => {
