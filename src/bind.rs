@@ -351,9 +351,9 @@ struct Decoded {
     mask: Option<GrayImage>,
 }
 
-fn decode(p: &Photo) -> Result<Decoded> {
+fn decode(p: &Photo, spare: Vec<f32>) -> Result<Decoded> {
     Ok(Decoded {
-        rgb: p.load()?,
+        rgb: p.load_into(spare)?,
         mask: p.load_mask()?,
     })
 }
@@ -384,19 +384,26 @@ pub(crate) fn for_each_photo_with<T: Send>(
     if photos.is_empty() {
         return Ok(());
     }
-    let load = |i: usize| -> Result<(Decoded, T)> {
-        let d = decode(&photos[i])?;
+    let load = |i: usize, spare: Vec<f32>| -> Result<(Decoded, T)> {
+        let d = decode(&photos[i], spare)?;
         let t = prepare(i, &d.rgb);
         Ok((d, t))
     };
-    let mut current = load(0)?;
+    let mut current = load(0, Vec::new())?;
+    // The buffer of the photograph before the current one, for the next one to decode into.
+    let mut spare = Vec::new();
     for i in 0..photos.len() {
         let (cur, extra) = current;
         let (next, done) = rayon::join(
-            || (i + 1 < photos.len()).then(|| load(i + 1)).transpose(),
+            || {
+                (i + 1 < photos.len())
+                    .then(|| load(i + 1, std::mem::take(&mut spare)))
+                    .transpose()
+            },
             || work(i, &cur.rgb, cur.mask.as_ref(), extra),
         );
         done?;
+        spare = cur.rgb.into_raw();
         progress.advance(1);
         match next? {
             Some(n) => current = n,

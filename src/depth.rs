@@ -26,6 +26,9 @@ pub struct DepthMap {
 /// Rows rasterised together by one thread.
 const BAND: usize = 32;
 
+/// Faces binned into bands together by one thread.
+const FACE_BLOCK: usize = 1 << 16;
+
 impl DepthMap {
     /// Renders the depth of `mesh` seen by `view`, at most `max_side` pixels on the longer side.
     /// A triangle with a corner that cannot be imaged (behind the camera) is left out.
@@ -44,56 +47,54 @@ impl DepthMap {
         let scale = (max_side as f64 / pw.max(ph) as f64).min(1.0);
         let w = ((pw as f64 * scale).round() as u32).max(1);
         let h = ((ph as f64 * scale).round() as u32).max(1);
-        // Projected corners: depth pixel coordinates (continuous, pixel centres at +0.5) and z.
-        let proj: Vec<Option<[f64; 3]>> = projected
-            .par_iter()
-            .map(|q| q.map(|[x, y, z]| [x * scale, y * scale, z]))
-            .collect();
-        // Triangles that land in the image, with their row range, so each band scans few.
-        let tris: Vec<([[f64; 3]; 3], usize, usize)> = mesh
-            .faces
-            .par_iter()
-            .filter_map(|f| {
-                let a = proj[f[0].idx()]?;
-                let b = proj[f[1].idx()]?;
-                let c = proj[f[2].idx()]?;
-                let (ylo, yhi) = (a[1].min(b[1]).min(c[1]), a[1].max(b[1]).max(c[1]));
-                let (xlo, xhi) = (a[0].min(b[0]).min(c[0]), a[0].max(b[0]).max(c[0]));
-                if yhi < 0.0 || xhi < 0.0 || ylo > h as f64 || xlo > w as f64 {
-                    return None;
+        // Projected corners in depth pixel coordinates (continuous, pixel centres at +0.5)
+        // and z, and the rows a triangle covers, if it lands in the image. Computed where
+        // needed rather than stored: a list of 1.2M triangles per photograph was 100 MB of
+        // fresh memory, and its page faults cost more than recomputing.
+        let corners = |f: usize| -> Option<([[f64; 3]; 3], usize, usize)> {
+            let fv = mesh.faces[f];
+            let at = |k: usize| projected[fv[k].idx()].map(|[x, y, z]| [x * scale, y * scale, z]);
+            let (a, b, c) = (at(0)?, at(1)?, at(2)?);
+            let (ylo, yhi) = (a[1].min(b[1]).min(c[1]), a[1].max(b[1]).max(c[1]));
+            let (xlo, xhi) = (a[0].min(b[0]).min(c[0]), a[0].max(b[0]).max(c[0]));
+            if yhi < 0.0 || xhi < 0.0 || ylo > h as f64 || xlo > w as f64 {
+                return None;
+            }
+            let r0 = (ylo - 0.5).ceil().max(0.0) as usize;
+            let r1 = ((yhi - 0.5).floor() as i64).min(h as i64 - 1);
+            (r1 >= r0 as i64).then_some(([a, b, c], r0, r1 as usize))
+        };
+        // Per block of faces, the faces each band of rows must scan, in face order.
+        let bands = (h as usize).div_ceil(BAND);
+        let by_block: Vec<Vec<Vec<u32>>> = (0..mesh.num_faces())
+            .into_par_iter()
+            .step_by(FACE_BLOCK)
+            .map(|f0| {
+                let mut lists = vec![Vec::new(); bands];
+                for f in f0..(f0 + FACE_BLOCK).min(mesh.num_faces()) {
+                    if let Some((_, r0, r1)) = corners(f) {
+                        for list in &mut lists[r0 / BAND..=r1 / BAND] {
+                            list.push(f as u32);
+                        }
+                    }
                 }
-                let r0 = (ylo - 0.5).ceil().max(0.0) as usize;
-                let r1 = ((yhi - 0.5).floor() as i64).min(h as i64 - 1);
-                (r1 >= r0 as i64).then_some(([a, b, c], r0, r1 as usize))
+                lists
             })
             .collect();
-        let mut by_band: Vec<Vec<u32>> = vec![Vec::new(); (h as usize).div_ceil(BAND)];
-        for (i, t) in tris.iter().enumerate() {
-            for band in by_band.iter_mut().take(t.2 / BAND + 1).skip(t.1 / BAND) {
-                band.push(i as u32);
-            }
-        }
         let mut z = vec![f32::INFINITY; (w * h) as usize];
         z.par_chunks_mut(BAND * w as usize)
-            .zip(by_band.par_iter())
             .enumerate()
-            .for_each(|(bi, (rows, list))| {
+            .for_each(|(bi, rows)| {
                 let y0 = bi * BAND;
                 let y1 = y0 + rows.len() / w as usize;
-                for &ti in list {
-                    let (t, r0, r1) = &tris[ti as usize];
-                    raster_depth(
-                        t,
-                        (*r0).max(y0),
-                        (*r1).min(y1 - 1),
-                        w as usize,
-                        |x, y, d| {
-                            let cell = &mut rows[(y - y0) * w as usize + x];
-                            if d < *cell {
-                                *cell = d;
-                            }
-                        },
-                    );
+                for &f in by_block.iter().flat_map(|lists| &lists[bi]) {
+                    let (t, r0, r1) = corners(f as usize).expect("listed faces land");
+                    raster_depth(&t, r0.max(y0), r1.min(y1 - 1), w as usize, |x, y, d| {
+                        let cell = &mut rows[(y - y0) * w as usize + x];
+                        if d < *cell {
+                            *cell = d;
+                        }
+                    });
                 }
             });
         DepthMap {

@@ -214,7 +214,12 @@ impl Photo {
 
     /// Decodes the photograph as RGB floats in [0, 1], checking its size against the camera.
     pub fn load(&self) -> Result<Rgb32FImage> {
-        let img = io::image::read_rgb32f(&self.path)?;
+        self.load_into(Vec::new())
+    }
+
+    /// [`Photo::load`] reusing `spare`'s memory where it can (a previous photograph's buffer).
+    pub fn load_into(&self, spare: Vec<f32>) -> Result<Rgb32FImage> {
+        let img = io::image::read_rgb32f_into(&self.path, spare)?;
         let expected = (self.view.camera.width, self.view.camera.height);
         if img.dimensions() != expected {
             return Err(Error::at_element(

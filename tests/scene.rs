@@ -137,6 +137,16 @@ fn photos_in_every_format_decode_with_their_precision() {
         (b.get_pixel(5, 0).0[0] - 1005.0 / 65535.0).abs() < 1e-6,
         "16-bit precision kept"
     );
+    // Decoding into a previous photograph's buffer (larger, holding other values) gives the
+    // image crate's own conversion, 8- and 16-bit alike.
+    for n in ["a.png", "d.jpg", "b16.png"] {
+        let own = image::open(root.join("images").join(n))
+            .unwrap()
+            .into_rgb32f();
+        let reused = by(n).load_into(vec![0.5; 32 * 16 * 3 + 7]).unwrap();
+        assert_eq!(reused, own, "{n}");
+    }
+    assert!(by("e.png").load_into(vec![0.0; 16]).is_err());
     assert!(by("e.png").load().is_err());
     assert_eq!(
         by("a.png").load_mask().unwrap().unwrap().dimensions(),
