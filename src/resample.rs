@@ -586,6 +586,45 @@ impl<'a> PhotoPyramid<'a> {
 /// Largest pixel extent of a triangle resampled through an affine texel -> pixel map.
 const AFFINE_PX: f64 = 8.0;
 
+/// Largest pixel extent of a triangle resampled through an affine map if it passes the
+/// centroid test.
+const AFFINE_MAX_PX: f64 = 64.0;
+
+/// Largest error of an affine map at a triangle's test points, pixels.
+const AFFINE_TOL: f64 = 0.02;
+
+/// Whether texels of the triangle `pos` (projected to `q` by `view`) may map to pixels
+/// affinely: always when it spans under [`AFFINE_PX`] pixels; up to [`AFFINE_MAX_PX`] where
+/// the map's error (perspective and distortion) is under [`AFFINE_TOL`] pixels at the
+/// centroid and the edge midpoints.
+fn affine_fits(view: &PosedCamera, pos: &[Point3<f64>; 3], q: &[Point2<f64>; 3]) -> bool {
+    let extent = (q[0] - q[1])
+        .norm()
+        .max((q[1] - q[2]).norm())
+        .max((q[2] - q[0]).norm());
+    if extent < AFFINE_PX {
+        return true;
+    }
+    if extent >= AFFINE_MAX_PX {
+        return false;
+    }
+    // The error of the affine map is near quadratic over a triangle this small: with it under
+    // the tolerance at the edge midpoints it is under 4/3 of it everywhere; the centroid
+    // catches an error that cancels at the midpoints.
+    let at = |b: [f64; 3]| -> bool {
+        let p = Point3::from(pos[0].coords * b[0] + pos[1].coords * b[1] + pos[2].coords * b[2]);
+        let lin = q[0].coords * b[0] + q[1].coords * b[1] + q[2].coords * b[2];
+        let cam = view.pose.transform(&p);
+        cam.z > 0.0
+            && view
+                .camera
+                .project(&cam)
+                .is_some_and(|e| (e.coords - lin).norm() < AFFINE_TOL)
+    };
+    let t = 1.0 / 3.0;
+    at([t, t, t]) && at([0.5, 0.5, 0.0]) && at([0.0, 0.5, 0.5]) && at([0.5, 0.0, 0.5])
+}
+
 /// The per-face work shared by every way of combining the photographs: which face owns each
 /// texel, the triangle classes, the photographs sampled per face, the filled vertex colours.
 pub(crate) struct Prepared<'a> {
@@ -796,11 +835,8 @@ impl<'a> Prepared<'a> {
         let affine = match proj {
             [Some(a), Some(b), Some(c)] => {
                 let q = [a, b, c].map(|p| Point2::new(p[0], p[1]));
-                let extent = (q[0] - q[1])
-                    .norm()
-                    .max((q[1] - q[2]).norm())
-                    .max((q[2] - q[0]).norm());
-                (extent < AFFINE_PX).then(|| {
+                let fits = affine_fits(view, &pos, &q);
+                fits.then(|| {
                     let cos: [f64; 3] = std::array::from_fn(|k| {
                         let to_cam = ph.centre - pos[k];
                         nrm[k].dot(&to_cam) / to_cam.norm().max(1e-300)
@@ -1237,6 +1273,84 @@ mod tests {
         }
         let c = classify(&m, &Binding::from_samples(offsets, samples, 2));
         assert_eq!(c[0], FaceClass::Blue);
+    }
+
+    #[test]
+    fn affine_maps_are_used_only_where_they_land_within_tolerance() {
+        use crate::camera::{Camera, CameraModel, Pose};
+        // 4000 x 3000, f = 3000, strong barrel distortion.
+        let camera = Camera::new(
+            1,
+            CameraModel::Opencv,
+            4000,
+            3000,
+            vec![3000.0, 3000.0, 2000.0, 1500.0, -0.25, 0.08, 0.0, 0.0],
+        )
+        .unwrap();
+        let view = PosedCamera {
+            camera,
+            pose: Pose::from_colmap([1.0, 0.0, 0.0, 0.0], [0.0; 3]),
+        };
+        let mut rng = 12345u64;
+        let mut next = || {
+            rng = rng
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (rng >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut large_affine, mut large_rejected, mut worst) = (0, 0, 0f64);
+        for _ in 0..4000 {
+            // A triangle 0.3-3 units from the camera, anywhere in the image, of any size
+            // and slant.
+            let z = 0.3 + 2.7 * next();
+            let c = Vector3::new((next() - 0.5) * 1.2 * z, (next() - 0.5) * 0.9 * z, z);
+            let size = (2.0 + 70.0 * next()) * z / 3000.0;
+            let pos: [Point3<f64>; 3] = std::array::from_fn(|_| {
+                let d = Vector3::new(next() - 0.5, next() - 0.5, (next() - 0.5) * 2.0);
+                Point3::from(c + d * size)
+            });
+            let proj: Option<Vec<Point2<f64>>> = pos
+                .iter()
+                .map(|p| {
+                    (p.z > 0.0)
+                        .then(|| view.camera.project(&p.coords))
+                        .flatten()
+                })
+                .collect();
+            let Some(q) = proj else { continue };
+            let q = [q[0], q[1], q[2]];
+            let extent = (q[0] - q[1])
+                .norm()
+                .max((q[1] - q[2]).norm())
+                .max((q[2] - q[0]).norm());
+            let fits = affine_fits(&view, &pos, &q);
+            if extent >= AFFINE_PX {
+                if fits {
+                    large_affine += 1;
+                } else {
+                    large_rejected += 1;
+                }
+            }
+            if !fits || extent < AFFINE_PX {
+                continue;
+            }
+            for i in 0..=8 {
+                for j in 0..=8 - i {
+                    let b = [i as f64 / 8.0, j as f64 / 8.0, (8 - i - j) as f64 / 8.0];
+                    let p = pos[0].coords * b[0] + pos[1].coords * b[1] + pos[2].coords * b[2];
+                    let lin = q[0].coords * b[0] + q[1].coords * b[1] + q[2].coords * b[2];
+                    let exact = view.camera.project(&p).unwrap();
+                    worst = worst.max((exact.coords - lin).norm());
+                }
+            }
+        }
+        // Both outcomes happen, and accepted maps are within 4/3 of the tolerance everywhere
+        // (a little more for the non-quadratic part).
+        assert!(
+            large_affine > 300 && large_rejected > 300,
+            "{large_affine} {large_rejected}"
+        );
+        assert!(worst < 1.5 * AFFINE_TOL, "worst error {worst} px");
     }
 
     #[test]

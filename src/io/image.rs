@@ -65,9 +65,8 @@ pub fn read_rgb32f_into(path: &Path, spare: Vec<f32>) -> Result<Rgb32FImage> {
         return Ok(img.into_rgb32f());
     }
     let (w, h) = decoder.dimensions();
-    let n = usize::try_from(decoder.total_bytes()).map_err(|_| {
-        Error::parse(path, Location::File, "image too large for this machine")
-    })?;
+    let n = usize::try_from(decoder.total_bytes())
+        .map_err(|_| Error::parse(path, Location::File, "image too large for this machine"))?;
     let mut buf = spare;
     buf.clear();
     buf.resize(n, 0.0);
