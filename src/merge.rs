@@ -540,21 +540,12 @@ fn reduce_part(
     };
     let cols: Vec<_> = (0..dw).map(|x| taps(x, ox, nw, w)).collect();
     let mut tmp = vec![0f32; dw * h * c];
-    for y in 0..h {
-        let s = &src.d[y * w * c..(y + 1) * w * c];
-        if s.iter().all(|&v| v == 0.0) {
-            continue;
-        }
-        let row = &mut tmp[y * dw * c..(y + 1) * dw * c];
-        for (x, (idx, wt, n)) in cols.iter().enumerate() {
-            let o = &mut row[x * c..(x + 1) * c];
-            for t in 0..*n {
-                let si = idx[t] * c;
-                for ch in 0..c {
-                    o[ch] += wt[t] * s[si + ch];
-                }
-            }
-        }
+    // The channel count as a constant, so that the tap loops unroll (a layer's colour sums
+    // have 4, its mask 1).
+    match c {
+        4 => reduce_rows::<4>(&src.d, w, &cols, &mut tmp),
+        1 => reduce_rows::<1>(&src.d, w, &cols, &mut tmp),
+        _ => reduce_rows_any(&src.d, w, c, &cols, &mut tmp),
     }
     let mut out = vec![0f32; dw * dh * c];
     let rl = dw * c;
@@ -569,6 +560,47 @@ fn reduce_part(
         }
     }
     Plane::from_vec(dw, dh, c, out).expect("sized")
+}
+
+/// Column taps of one output texel of a reduction: source indices, weights, count.
+type Taps = ([usize; 5], [f32; 5], usize);
+
+/// The horizontal pass of [`reduce_part`] for `C` channels: each row of `src` (`w` texels)
+/// into `tmp` through the column taps `cols`; all-zero rows are skipped (most of a layer).
+fn reduce_rows<const C: usize>(src: &[f32], w: usize, cols: &[Taps], tmp: &mut [f32]) {
+    let dw = cols.len();
+    for (s, row) in src.chunks_exact(w * C).zip(tmp.chunks_exact_mut(dw * C)) {
+        if s.iter().all(|&v| v == 0.0) {
+            continue;
+        }
+        for ((idx, wt, n), o) in cols.iter().zip(row.chunks_exact_mut(C)) {
+            let mut acc = [0f32; C];
+            for t in 0..*n {
+                let v = &s[idx[t] * C..idx[t] * C + C];
+                for ch in 0..C {
+                    acc[ch] += wt[t] * v[ch];
+                }
+            }
+            o.copy_from_slice(&acc);
+        }
+    }
+}
+
+/// [`reduce_rows`] for any channel count.
+fn reduce_rows_any(src: &[f32], w: usize, c: usize, cols: &[Taps], tmp: &mut [f32]) {
+    let dw = cols.len();
+    for (s, row) in src.chunks_exact(w * c).zip(tmp.chunks_exact_mut(dw * c)) {
+        if s.iter().all(|&v| v == 0.0) {
+            continue;
+        }
+        for ((idx, wt, n), o) in cols.iter().zip(row.chunks_exact_mut(c)) {
+            for t in 0..*n {
+                for ch in 0..c {
+                    o[ch] += wt[t] * s[idx[t] * c + ch];
+                }
+            }
+        }
+    }
 }
 
 /// A chart's band accumulators.

@@ -518,15 +518,16 @@ impl<'a> PhotoPyramid<'a> {
             }
             let (nw, nh) = (w / 2, h / 2);
             let mut buf = vec![0f32; (nw * nh * 3) as usize];
+            let (raw, stride) = (prev.as_raw(), 3 * w as usize);
             buf.par_chunks_mut((nw * 3) as usize)
                 .enumerate()
                 .for_each(|(y, row)| {
-                    for x in 0..nw as usize {
+                    let r0 = &raw[2 * y * stride..(2 * y + 1) * stride];
+                    let r1 = &raw[(2 * y + 1) * stride..(2 * y + 2) * stride];
+                    for (x, o) in row.chunks_exact_mut(3).enumerate() {
+                        let (a, b) = (&r0[6 * x..6 * x + 6], &r1[6 * x..6 * x + 6]);
                         for k in 0..3 {
-                            let g = |dx: u32, dy: u32| {
-                                prev.get_pixel(2 * x as u32 + dx, 2 * y as u32 + dy).0[k]
-                            };
-                            row[3 * x + k] = 0.25 * (g(0, 0) + g(1, 0) + g(0, 1) + g(1, 1));
+                            o[k] = 0.25 * (a[k] + a[3 + k] + b[k] + b[3 + k]);
                         }
                     }
                 });
