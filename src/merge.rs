@@ -331,6 +331,39 @@ fn for_taps_in<const NX: usize, const NY: usize>(
     }
 }
 
+/// [`Layer::splat`]'s sums for taps `xw` x `yw` from texel `(x0, y0)` of a level-1 buffer
+/// `gw` wide (colour sums and weight in `g`, mask sums in `mask`).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn splat_block<const NX: usize, const NY: usize>(
+    g: &mut [f32],
+    mask: &mut [f32],
+    gw: usize,
+    (x0, y0): (usize, usize),
+    xw: [f32; NX],
+    yw: [f32; NY],
+    c: [f32; 3],
+    m: f32,
+    w: f32,
+) {
+    for (b, &wy) in yw.iter().enumerate() {
+        let row = (y0 + b) * gw + x0;
+        let d = &mut g[4 * row..4 * (row + NX)];
+        let ms = &mut mask[row..row + NX];
+        for (a, &wx) in xw.iter().enumerate() {
+            let wt = wx * wy * w;
+            let e = &mut d[4 * a..4 * a + 4];
+            e[0] += wt * c[0];
+            e[1] += wt * c[1];
+            e[2] += wt * c[2];
+            e[3] += wt;
+            if m > 0.0 {
+                ms[a] += wt * m;
+            }
+        }
+    }
+}
+
 /// One layer (a photograph's, or the complement's) on part of a chart, as its pyramid is
 /// built. Level-0 texels are splatted straight into level 1 as they are sampled, so no
 /// level-0 image is ever held: the photographs are sampled where they see the chart only, and
@@ -393,6 +426,32 @@ impl Layer {
         let (nw, nh) = self.chart[0];
         let mask = &mut self.m[0];
         let (gw, gh) = (g.w, g.h);
+        let (bx, by) = (self.ox / 2, self.oy / 2);
+        // Away from the chart's border the taps are the kernel's, by parity alone, and (the
+        // part being padded) inside the part: the same sums without the general tap lists.
+        if x >= 3 && x + 4 <= nw && y >= 3 && y + 4 <= nh {
+            let k = &self.k;
+            let first = |v: usize| {
+                if v.is_multiple_of(2) {
+                    v / 2 - 1
+                } else {
+                    v / 2
+                }
+            };
+            let (x0, y0) = (first(x), first(y));
+            if x0 >= bx && x0 + 3 <= bx + gw && y0 >= by && y0 + 3 <= by + gh {
+                let at = (x0 - bx, y0 - by);
+                let (even, odd) = ([k[4], k[2], k[0]], [k[3], k[1]]);
+                let (g, m_) = (&mut g.d[..], &mut mask[..]);
+                match (x.is_multiple_of(2), y.is_multiple_of(2)) {
+                    (true, true) => splat_block(g, m_, gw, at, even, even, c, m, w),
+                    (false, true) => splat_block(g, m_, gw, at, odd, even, c, m, w),
+                    (true, false) => splat_block(g, m_, gw, at, even, odd, c, m, w),
+                    (false, false) => splat_block(g, m_, gw, at, odd, odd, c, m, w),
+                }
+                return;
+            }
+        }
         for_taps_in(
             down_taps(x, nw, &self.k),
             down_taps(y, nh, &self.k),
