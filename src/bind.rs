@@ -15,11 +15,12 @@
 
 use crate::depth::{focal_px, DepthMap};
 use crate::error::{Error, Result};
+use crate::io::image::PhotoPixels;
 use crate::mesh::{FaceId, Mesh};
 use crate::photometric::Gains;
 use crate::progress::Progress;
 use crate::scene::Photo;
-use image::{GrayImage, Rgb32FImage};
+use image::GrayImage;
 use nalgebra::{Point2, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -347,13 +348,13 @@ impl VertexFaces {
 
 /// A decoded photograph with its mask.
 struct Decoded {
-    rgb: Rgb32FImage,
+    rgb: PhotoPixels,
     mask: Option<GrayImage>,
 }
 
-fn decode(p: &Photo, spare: Vec<f32>) -> Result<Decoded> {
+fn decode(p: &Photo, spare: Vec<u8>) -> Result<Decoded> {
     Ok(Decoded {
-        rgb: p.load_into(spare)?,
+        rgb: p.load_pixels(spare)?,
         mask: p.load_mask()?,
     })
 }
@@ -363,7 +364,7 @@ fn decode(p: &Photo, spare: Vec<f32>) -> Result<Decoded> {
 pub(crate) fn for_each_photo(
     photos: &[Photo],
     progress: &dyn Progress,
-    mut work: impl FnMut(usize, &Rgb32FImage, Option<&GrayImage>) -> Result<()> + Send,
+    mut work: impl FnMut(usize, &PhotoPixels, Option<&GrayImage>) -> Result<()> + Send,
 ) -> Result<()> {
     for_each_photo_with(
         photos,
@@ -378,13 +379,13 @@ pub(crate) fn for_each_photo(
 pub(crate) fn for_each_photo_with<T: Send>(
     photos: &[Photo],
     progress: &dyn Progress,
-    prepare: impl Fn(usize, &Rgb32FImage) -> T + Sync,
-    mut work: impl FnMut(usize, &Rgb32FImage, Option<&GrayImage>, T) -> Result<()> + Send,
+    prepare: impl Fn(usize, &PhotoPixels) -> T + Sync,
+    mut work: impl FnMut(usize, &PhotoPixels, Option<&GrayImage>, T) -> Result<()> + Send,
 ) -> Result<()> {
     if photos.is_empty() {
         return Ok(());
     }
-    let load = |i: usize, spare: Vec<f32>| -> Result<(Decoded, T)> {
+    let load = |i: usize, spare: Vec<u8>| -> Result<(Decoded, T)> {
         let d = decode(&photos[i], spare)?;
         let t = prepare(i, &d.rgb);
         Ok((d, t))
@@ -403,7 +404,7 @@ pub(crate) fn for_each_photo_with<T: Send>(
             || work(i, &cur.rgb, cur.mask.as_ref(), extra),
         );
         done?;
-        spare = cur.rgb.into_raw();
+        spare = cur.rgb.into_spare();
         progress.advance(1);
         match next? {
             Some(n) => current = n,
@@ -416,14 +417,14 @@ pub(crate) fn for_each_photo_with<T: Send>(
 /// 3x3 Gaussian weights (1 2 1 / 2 4 2 / 1 2 1) / 16.
 const GAUSS3: [f32; 9] = [1.0, 2.0, 1.0, 2.0, 4.0, 2.0, 1.0, 2.0, 1.0];
 
-fn pixel(img: &Rgb32FImage, x: i64, y: i64) -> [f32; 3] {
+fn pixel(img: &PhotoPixels, x: i64, y: i64) -> [f32; 3] {
     let x = x.clamp(0, img.width() as i64 - 1) as u32;
     let y = y.clamp(0, img.height() as i64 - 1) as u32;
-    img.get_pixel(x, y).0
+    img.get(x, y)
 }
 
 /// 3x3 Gaussian-weighted colour around the pixel holding `px`.
-pub(crate) fn gauss_sample(img: &Rgb32FImage, px: &Point2<f64>) -> [f32; 3] {
+pub(crate) fn gauss_sample(img: &PhotoPixels, px: &Point2<f64>) -> [f32; 3] {
     let (cx, cy) = (px.x.floor() as i64, px.y.floor() as i64);
     let mut acc = [0.0f32; 3];
     for (i, w) in GAUSS3.iter().enumerate() {
@@ -437,7 +438,7 @@ pub(crate) fn gauss_sample(img: &Rgb32FImage, px: &Point2<f64>) -> [f32; 3] {
 
 /// The paper's background sample: the photograph median-filtered (3x3, per channel), then
 /// sampled with the 3x3 Gaussian around `px`.
-fn median_gauss_sample(img: &Rgb32FImage, px: &Point2<f64>) -> [f32; 3] {
+fn median_gauss_sample(img: &PhotoPixels, px: &Point2<f64>) -> [f32; 3] {
     let (cx, cy) = (px.x.floor() as i64, px.y.floor() as i64);
     let mut acc = [0.0f32; 3];
     for (i, w) in GAUSS3.iter().enumerate() {
@@ -468,7 +469,7 @@ pub(crate) fn median(v: &mut [f32]) -> f32 {
 }
 
 /// Median colour of the uncovered pixels and their spread, if there are enough of them.
-fn estimate_background(img: &Rgb32FImage, depth: &DepthMap) -> Option<([f32; 3], f32)> {
+fn estimate_background(img: &PhotoPixels, depth: &DepthMap) -> Option<([f32; 3], f32)> {
     let step = (depth.width.max(depth.height) / 256).clamp(1, 8);
     let pts = depth.uncovered(step);
     // Fewer than 1% of the sampled grid: the mesh fills the frame, no background to learn.

@@ -863,7 +863,7 @@ fn multiband(
     let cpu_sampling = AtomicU64::new(0);
     progress.start("merging", photos.len() as u64);
     // The next photograph's depth map and mip levels are built while this one is sampled.
-    let setup = |pi: usize, rgb: &image::Rgb32FImage| prep.photo_setup(photos, pi, rgb);
+    let setup = |pi: usize, rgb: &crate::io::image::PhotoPixels| prep.photo_setup(photos, pi, rgb);
     for_each_photo_with(photos, progress, setup, |pi, rgb, mask, setup| {
         seconds_setup += setup.seconds;
         let ph = prep.photo_with(photos, pi, rgb, mask, setup);

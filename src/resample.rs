@@ -18,6 +18,7 @@ use crate::bind::{consistent, depth_tolerance, for_each_photo_with, Binding, Con
 use crate::camera::PosedCamera;
 use crate::depth::{focal_px, DepthMap};
 use crate::error::{Error, Result};
+use crate::io::image::{PhotoPixels, Values};
 use crate::mesh::{FaceId, Mesh};
 use crate::progress::Progress;
 use crate::scene::Photo;
@@ -500,74 +501,97 @@ fn clamp_bary(b: [f64; 3]) -> [f64; 3] {
 }
 
 /// A photograph as a mip chain (2x2 box filter), for samples whose footprint spans several
-/// pixels.
+/// pixels. The base stays as decoded (8-bit photographs a quarter of the memory of floats);
+/// the levels below it are floats.
 struct PhotoPyramid<'a> {
-    base: &'a Rgb32FImage,
+    base: &'a PhotoPixels,
     levels: Vec<Rgb32FImage>,
+}
+
+/// One 2x2 box-filter reduction of the `w` x `h` RGB values `raw`.
+fn half_size<V: Values + ?Sized>(raw: &V, w: u32, h: u32) -> Rgb32FImage {
+    let (nw, nh) = (w / 2, h / 2);
+    let mut buf = vec![0f32; (nw * nh * 3) as usize];
+    let stride = 3 * w as usize;
+    buf.par_chunks_mut((nw * 3) as usize)
+        .enumerate()
+        .for_each(|(y, row)| {
+            let (r0, r1) = (2 * y * stride, (2 * y + 1) * stride);
+            for (x, o) in row.chunks_exact_mut(3).enumerate() {
+                let (a, b) = (r0 + 6 * x, r1 + 6 * x);
+                for k in 0..3 {
+                    o[k] = 0.25
+                        * (raw.value(a + k)
+                            + raw.value(a + 3 + k)
+                            + raw.value(b + k)
+                            + raw.value(b + 3 + k));
+                }
+            }
+        });
+    Rgb32FImage::from_raw(nw, nh, buf).expect("sized nw*nh*3")
+}
+
+/// Bilinear sample at pixel coordinate (`x`, `y`) (pixel units, centres at integers) of the
+/// `w` x `h` RGB values `raw`, clamped at the borders.
+#[inline(always)]
+fn bilinear_in<V: Values + ?Sized>(raw: &V, w: u32, h: u32, x: f64, y: f64) -> [f32; 3] {
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = ((x - x0) as f32, (y - y0) as f32);
+    let cl = |v: f64, n: u32| (v.max(0.0) as u32).min(n - 1);
+    let (xa, xb, ya, yb) = (cl(x0, w), cl(x0 + 1.0, w), cl(y0, h), cl(y0 + 1.0, h));
+    let at = |x: u32, y: u32| -> [f32; 3] {
+        let i = 3 * (y as usize * w as usize + x as usize);
+        [raw.value(i), raw.value(i + 1), raw.value(i + 2)]
+    };
+    let (p00, p10) = (at(xa, ya), at(xb, ya));
+    let (p01, p11) = (at(xa, yb), at(xb, yb));
+    std::array::from_fn(|k| {
+        let top = p00[k] + (p10[k] - p00[k]) * fx;
+        let bot = p01[k] + (p11[k] - p01[k]) * fx;
+        top + (bot - top) * fy
+    })
 }
 
 impl<'a> PhotoPyramid<'a> {
     /// The levels below `base`, at most `levels`.
-    fn levels_of(base: &Rgb32FImage, levels: usize) -> Vec<Rgb32FImage> {
+    fn levels_of(base: &PhotoPixels, levels: usize) -> Vec<Rgb32FImage> {
         let mut out: Vec<Rgb32FImage> = Vec::new();
         for _ in 0..levels {
-            let prev = out.last().unwrap_or(base);
-            let (w, h) = prev.dimensions();
+            let (w, h) = match out.last() {
+                Some(prev) => prev.dimensions(),
+                None => base.dimensions(),
+            };
             if w < 2 || h < 2 {
                 break;
             }
-            let (nw, nh) = (w / 2, h / 2);
-            let mut buf = vec![0f32; (nw * nh * 3) as usize];
-            let (raw, stride) = (prev.as_raw(), 3 * w as usize);
-            buf.par_chunks_mut((nw * 3) as usize)
-                .enumerate()
-                .for_each(|(y, row)| {
-                    let r0 = &raw[2 * y * stride..(2 * y + 1) * stride];
-                    let r1 = &raw[(2 * y + 1) * stride..(2 * y + 2) * stride];
-                    for (x, o) in row.chunks_exact_mut(3).enumerate() {
-                        let (a, b) = (&r0[6 * x..6 * x + 6], &r1[6 * x..6 * x + 6]);
-                        for k in 0..3 {
-                            o[k] = 0.25 * (a[k] + a[3 + k] + b[k] + b[3 + k]);
-                        }
-                    }
-                });
-            out.push(Rgb32FImage::from_raw(nw, nh, buf).expect("sized nw*nh*3"));
+            let next = match (out.last(), base) {
+                (Some(prev), _) => half_size(prev.as_raw().as_slice(), w, h),
+                (None, PhotoPixels::Rgb8(img)) => half_size(img.as_raw().as_slice(), w, h),
+                (None, PhotoPixels::Rgb32F(img)) => half_size(img.as_raw().as_slice(), w, h),
+            };
+            out.push(next);
         }
         out
-    }
-
-    fn level(&self, l: usize) -> &Rgb32FImage {
-        if l == 0 {
-            self.base
-        } else {
-            &self.levels[(l - 1).min(self.levels.len().saturating_sub(1))]
-        }
     }
 
     /// Bilinear sample at photo pixel coordinate `px` (centres at +0.5) of level `l`.
     fn bilinear(&self, l: usize, px: &Point2<f64>) -> [f32; 3] {
         let l = l.min(self.levels.len());
-        let img = self.level(l);
         let f = (1u32 << l) as f64;
-        let (w, h) = img.dimensions();
-        let x = px.x / f - 0.5;
-        let y = px.y / f - 0.5;
-        let (x0, y0) = (x.floor(), y.floor());
-        let (fx, fy) = ((x - x0) as f32, (y - y0) as f32);
-        let cl = |v: f64, n: u32| (v.max(0.0) as u32).min(n - 1);
-        let (xa, xb, ya, yb) = (cl(x0, w), cl(x0 + 1.0, w), cl(y0, h), cl(y0 + 1.0, h));
-        let raw: &[f32] = img.as_raw();
-        let at = |x: u32, y: u32| -> [f32; 3] {
-            let i = 3 * (y as usize * w as usize + x as usize);
-            [raw[i], raw[i + 1], raw[i + 2]]
-        };
-        let (p00, p10) = (at(xa, ya), at(xb, ya));
-        let (p01, p11) = (at(xa, yb), at(xb, yb));
-        std::array::from_fn(|k| {
-            let top = p00[k] + (p10[k] - p00[k]) * fx;
-            let bot = p01[k] + (p11[k] - p01[k]) * fx;
-            top + (bot - top) * fy
-        })
+        let (x, y) = (px.x / f - 0.5, px.y / f - 0.5);
+        if l > 0 {
+            let img = &self.levels[l - 1];
+            let (w, h) = img.dimensions();
+            return bilinear_in(img.as_raw().as_slice(), w, h, x, y);
+        }
+        match self.base {
+            PhotoPixels::Rgb8(img) => {
+                bilinear_in(img.as_raw().as_slice(), img.width(), img.height(), x, y)
+            }
+            PhotoPixels::Rgb32F(img) => {
+                bilinear_in(img.as_raw().as_slice(), img.width(), img.height(), x, y)
+            }
+        }
     }
 
     /// Trilinear sample with a footprint of `texels` photo pixels.
@@ -750,7 +774,7 @@ impl<'a> Prepared<'a> {
     /// The part of getting photograph `pi` (decoded as `rgb`) ready to sample that takes
     /// time: its projected vertices, depth map, mip levels and the faces that sample it,
     /// owned, so that it can run beside the work on the previous photograph.
-    pub(crate) fn photo_setup(&self, photos: &[Photo], pi: usize, rgb: &Rgb32FImage) -> PhotoSetup {
+    pub(crate) fn photo_setup(&self, photos: &[Photo], pi: usize, rgb: &PhotoPixels) -> PhotoSetup {
         let view = &photos[pi].view;
         let t = std::time::Instant::now();
         let projected = crate::depth::project_vertices(self.mesh, view);
@@ -784,7 +808,7 @@ impl<'a> Prepared<'a> {
         &self,
         photos: &'a [Photo],
         pi: usize,
-        rgb: &'a Rgb32FImage,
+        rgb: &'a PhotoPixels,
         mask: Option<&'a GrayImage>,
         setup: PhotoSetup,
     ) -> PhotoSampler<'a> {
@@ -1055,7 +1079,7 @@ pub fn resample(
     let (mut seconds_photo_setup, mut seconds_texels) = (0.0, 0.0);
     progress.start("resampling", photos.len() as u64);
     // The next photograph's depth map and mip levels are built while this one is sampled.
-    let setup = |pi: usize, rgb: &Rgb32FImage| prep.photo_setup(photos, pi, rgb);
+    let setup = |pi: usize, rgb: &PhotoPixels| prep.photo_setup(photos, pi, rgb);
     for_each_photo_with(photos, progress, setup, |pi, rgb, mask, setup| {
         seconds_photo_setup += setup.seconds;
         let ph = prep.photo_with(photos, pi, rgb, mask, setup);

@@ -6,6 +6,7 @@
 use crate::camera::colmap::{self, Reconstruction};
 use crate::camera::PosedCamera;
 use crate::error::{Error, Result};
+use crate::io::image::PhotoPixels;
 use crate::io::{self, MeshFormat};
 use crate::mesh::{LoadReport, Mesh};
 use image::{GrayImage, Rgb32FImage};
@@ -214,12 +215,13 @@ impl Photo {
 
     /// Decodes the photograph as RGB floats in [0, 1], checking its size against the camera.
     pub fn load(&self) -> Result<Rgb32FImage> {
-        self.load_into(Vec::new())
+        Ok(self.load_pixels(Vec::new())?.into_rgb32f())
     }
 
-    /// [`Photo::load`] reusing `spare`'s memory where it can (a previous photograph's buffer).
-    pub fn load_into(&self, spare: Vec<f32>) -> Result<Rgb32FImage> {
-        let img = io::image::read_rgb32f_into(&self.path, spare)?;
+    /// Decodes the photograph as stored (8-bit files stay 8-bit, in `spare`'s memory: a
+    /// previous photograph's buffer), checking its size against the camera.
+    pub fn load_pixels(&self, spare: Vec<u8>) -> Result<PhotoPixels> {
+        let img = io::image::read_photo(&self.path, spare)?;
         let expected = (self.view.camera.width, self.view.camera.height);
         if img.dimensions() != expected {
             return Err(Error::at_element(

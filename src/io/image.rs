@@ -49,46 +49,128 @@ pub fn read(path: &Path) -> Result<DynamicImage> {
 /// Decodes an image to linear-in-file RGB floats in [0, 1] (no colour conversion: values are
 /// the stored sRGB code values scaled, 16-bit PNG keeps its precision).
 pub fn read_rgb32f(path: &Path) -> Result<Rgb32FImage> {
-    read_rgb32f_into(path, Vec::new())
+    Ok(read(path)?.into_rgb32f())
 }
 
-/// [`read_rgb32f`] into `spare`'s memory when the file is 8-bit RGB (most photographs): a
-/// caller decoding photograph after photograph passes the last one's buffer back, which
-/// saves the page faults of 180 MB of fresh memory per 12 MP photograph (the 8-bit pixels
-/// are decoded into the buffer's last quarter and widened in place).
-pub fn read_rgb32f_into(path: &Path, spare: Vec<f32>) -> Result<Rgb32FImage> {
+/// A decoded photograph: 8-bit RGB as stored (most photographs; a quarter of the memory of
+/// floats), or floats for 16-bit and float files. Either way values read as floats in
+/// [0, 1], 8-bit ones as `v / 255` exactly as the image crate converts them, so both give the
+/// same numbers as [`read_rgb32f`].
+#[derive(Debug, Clone, PartialEq)]
+pub enum PhotoPixels {
+    /// 8-bit RGB.
+    Rgb8(image::RgbImage),
+    /// RGB floats.
+    Rgb32F(Rgb32FImage),
+}
+
+/// `v / 255` for every 8-bit value: the image crate's conversion, as a table.
+pub(crate) const U8_TO_F32: [f32; 256] = {
+    let mut t = [0f32; 256];
+    let mut i = 0;
+    while i < 256 {
+        t[i] = i as f32 / 255.0;
+        i += 1;
+    }
+    t
+};
+
+/// Flat RGB values readable as floats: the raw buffers of both kinds of [`PhotoPixels`], so
+/// that per-pixel loops can be written once and compiled for each.
+pub(crate) trait Values: Sync {
+    /// Value `i` of the flat buffer, in [0, 1].
+    fn value(&self, i: usize) -> f32;
+}
+
+impl Values for [u8] {
+    #[inline(always)]
+    fn value(&self, i: usize) -> f32 {
+        U8_TO_F32[self[i] as usize]
+    }
+}
+
+impl Values for [f32] {
+    #[inline(always)]
+    fn value(&self, i: usize) -> f32 {
+        self[i]
+    }
+}
+
+impl PhotoPixels {
+    /// Width and height in pixels.
+    pub fn dimensions(&self) -> (u32, u32) {
+        match self {
+            PhotoPixels::Rgb8(i) => i.dimensions(),
+            PhotoPixels::Rgb32F(i) => i.dimensions(),
+        }
+    }
+
+    /// Width in pixels.
+    pub fn width(&self) -> u32 {
+        self.dimensions().0
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> u32 {
+        self.dimensions().1
+    }
+
+    /// Pixel (`x`, `y`) as floats in [0, 1].
+    #[inline]
+    pub fn get(&self, x: u32, y: u32) -> [f32; 3] {
+        let i = 3 * (y as usize * self.width() as usize + x as usize);
+        match self {
+            PhotoPixels::Rgb8(img) => {
+                let r = img.as_raw();
+                [r.value(i), r.value(i + 1), r.value(i + 2)]
+            }
+            PhotoPixels::Rgb32F(img) => {
+                let r = img.as_raw();
+                [r[i], r[i + 1], r[i + 2]]
+            }
+        }
+    }
+
+    /// The pixels as floats.
+    pub fn into_rgb32f(self) -> Rgb32FImage {
+        match self {
+            PhotoPixels::Rgb8(img) => DynamicImage::ImageRgb8(img).into_rgb32f(),
+            PhotoPixels::Rgb32F(img) => img,
+        }
+    }
+
+    /// The 8-bit buffer, for the next photograph to decode into ([`read_photo`]).
+    pub fn into_spare(self) -> Vec<u8> {
+        match self {
+            PhotoPixels::Rgb8(img) => img.into_raw(),
+            PhotoPixels::Rgb32F(_) => Vec::new(),
+        }
+    }
+}
+
+/// Decodes a photograph, 8-bit RGB files into `spare`'s memory: a caller decoding photograph
+/// after photograph passes the last one's buffer back ([`PhotoPixels::into_spare`]), which
+/// saves the page faults of fresh memory per photograph.
+pub fn read_photo(path: &Path, spare: Vec<u8>) -> Result<PhotoPixels> {
     let mut r = open(path)?;
     r.limits(limits());
     let decoder = r.into_decoder().map_err(|e| decode_error(path, e))?;
     if decoder.color_type() != ColorType::Rgb8 {
         let img = DynamicImage::from_decoder(decoder).map_err(|e| decode_error(path, e))?;
-        return Ok(img.into_rgb32f());
+        return Ok(PhotoPixels::Rgb32F(img.into_rgb32f()));
     }
     let (w, h) = decoder.dimensions();
     let n = usize::try_from(decoder.total_bytes())
         .map_err(|_| Error::parse(path, Location::File, "image too large for this machine"))?;
     let mut buf = spare;
     buf.clear();
-    buf.resize(n, 0.0);
-    let bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut buf);
+    buf.resize(n, 0);
     decoder
-        .read_image(&mut bytes[3 * n..])
+        .read_image(&mut buf)
         .map_err(|e| decode_error(path, e))?;
-    // Value i moves from byte 3n + i to bytes 4i..4i + 4: a block's writes end at or before
-    // its own reads' end (4 i1 <= 3n + i1 as i1 <= n), so copying each block's bytes out
-    // first makes the widening safe in place.
-    const BLOCK: usize = 4096;
-    let mut tmp = [0u8; BLOCK];
-    for i0 in (0..n).step_by(BLOCK) {
-        let i1 = (i0 + BLOCK).min(n);
-        let src = &mut tmp[..i1 - i0];
-        src.copy_from_slice(&bytes[3 * n + i0..3 * n + i1]);
-        for (out, &v) in bytes[4 * i0..4 * i1].chunks_exact_mut(4).zip(src.iter()) {
-            // The image crate's own conversion: v / 255.
-            out.copy_from_slice(&(f32::from(v) / 255.0).to_ne_bytes());
-        }
-    }
-    Ok(Rgb32FImage::from_raw(w, h, buf).expect("3 values per pixel"))
+    Ok(PhotoPixels::Rgb8(
+        image::RgbImage::from_raw(w, h, buf).expect("3 bytes per pixel"),
+    ))
 }
 
 /// Decodes encoded bytes (an embedded texture).
