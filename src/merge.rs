@@ -1160,7 +1160,7 @@ fn add_complement(
         .map(|y| {
             let mut xs = (0..ch.w).filter(|&x| uncovered[y * ch.w + x] && owned(x, y));
             let first = xs.next()?;
-            Some((first, xs.last().unwrap_or(first) + 1))
+            Some((first, xs.next_back().unwrap_or(first) + 1))
         })
         .collect();
     let Some(by0) = rows.iter().position(Option::is_some) else {

@@ -519,8 +519,8 @@ fn half_size<V: Values + ?Sized>(raw: &V, w: u32, h: u32) -> Rgb32FImage {
             let (r0, r1) = (2 * y * stride, (2 * y + 1) * stride);
             for (x, o) in row.chunks_exact_mut(3).enumerate() {
                 let (a, b) = (r0 + 6 * x, r1 + 6 * x);
-                for k in 0..3 {
-                    o[k] = 0.25
+                for (k, v) in o.iter_mut().enumerate() {
+                    *v = 0.25
                         * (raw.value(a + k)
                             + raw.value(a + 3 + k)
                             + raw.value(b + k)
