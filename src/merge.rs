@@ -724,7 +724,9 @@ impl ChartAcc {
         self.num.iter().map(|p| (p.w, p.h)).collect()
     }
 
-    /// The blended chart image; the band sums are freed, the per-texel bookkeeping stays.
+    /// The blended chart image, or with best-view masks on a chart with coarser levels its
+    /// level 1 (the finest band stays in `finest`, for [`write_chart`]); the band sums are
+    /// freed, the per-texel bookkeeping stays.
     fn collapse(&mut self, a: f32, winner_mode: bool) -> Plane {
         let top = self.num.len() - 1;
         for l in 0..=top {
@@ -757,21 +759,12 @@ impl ChartAcc {
         pyramid::fill_holes(&mut self.num[top], &weights, a);
         self.den = Vec::new();
         if winner_mode && top > 0 {
-            // Collapse the coarser levels, expand, and add the half-precision finest band
-            // in place (no full-precision copy of it: 12 bytes per texel less at the peak).
-            let (w, h) = (self.num[0].w, self.num[0].h);
+            // The coarser levels collapsed; `write_chart` expands them a stripe at a time
+            // and adds the half-precision finest band (no chart-sized full-precision image:
+            // 12 bytes per texel less at the peak).
             let coarse = pyramid::collapse(self.num.split_off(1), a);
             self.num = Vec::new();
-            let mut up = pyramid::expand(&coarse, w, h, a);
-            drop(coarse);
-            for (v, b) in up.d.chunks_mut(3).zip(std::mem::take(&mut self.finest)) {
-                for k in 0..3 {
-                    if !b[k].is_nan() {
-                        v[k] += b[k].to_f32();
-                    }
-                }
-            }
-            return up;
+            return coarse;
         }
         pyramid::collapse(std::mem::take(&mut self.num), a)
     }
@@ -925,6 +918,16 @@ fn multiband(
             .collect();
         for (img, (ci, acc)) in done.into_iter().zip(work) {
             let ch = &charts[ci];
+            if winner_mode && ch.levels > 0 {
+                let out = (
+                    &mut color[..],
+                    &mut source[..],
+                    &mut views[..],
+                    &mut best[..],
+                );
+                write_chart(&prep, ch, ci as u32, &face_chart, &img, &acc, a, out);
+                continue;
+            }
             for y in 0..ch.h {
                 for x in 0..ch.w {
                     let (gx, gy) = (ch.x0 + x, ch.y0 + y);
@@ -970,6 +973,80 @@ fn multiband(
     out.stats.seam_levelling = levelling;
     out.stats.seconds_collapse = seconds_collapse;
     Ok(out)
+}
+
+/// Writes chart `ch` (number `ci`) with best-view masks into the atlas arrays `out` (colour,
+/// source, views, best photograph): `coarse`, its collapsed level 1, expanded a stripe of
+/// rows at a time, plus the finest band in `acc`, at the texels the chart owns. The same
+/// arithmetic as [`pyramid::expand`] on the whole chart, without a chart-sized image.
+#[allow(clippy::too_many_arguments)]
+fn write_chart(
+    prep: &Prepared,
+    ch: &Chart,
+    ci: u32,
+    face_chart: &[u32],
+    coarse: &Plane,
+    acc: &ChartAcc,
+    a: f32,
+    (color, source, views, best): (&mut [f32], &mut [u8], &mut [u8], &mut [u16]),
+) {
+    const STRIPE: usize = 32;
+    let n = prep.size();
+    let k = pyramid::kernel(a).map(|v| 2.0 * v);
+    let (sw, sh) = (coarse.w, coarse.h);
+    let rl = ch.w * 3;
+    let rows = ch.y0 * n..(ch.y0 + ch.h) * n;
+    color[3 * rows.start..3 * rows.end]
+        .par_chunks_mut(3 * STRIPE * n)
+        .zip(source[rows.clone()].par_chunks_mut(STRIPE * n))
+        .zip(views[rows.clone()].par_chunks_mut(STRIPE * n))
+        .zip(best[rows].par_chunks_mut(STRIPE * n))
+        .enumerate()
+        .for_each(|(si, (((crow, srow), vrow), brow))| {
+            let (ly0, ly1) = (si * STRIPE, ((si + 1) * STRIPE).min(ch.h));
+            // The level-1 rows these rows read (reflected ones included), widened.
+            let (lo, hi) = ((ly0 / 2).saturating_sub(1), ((ly1 - 1) / 2 + 1).min(sh - 1));
+            let mut tmp = vec![0f32; (hi - lo + 1) * rl];
+            for (sy, row) in (lo..=hi).zip(tmp.chunks_exact_mut(rl)) {
+                pyramid::expand_row(&coarse.d[sy * sw * 3..(sy + 1) * sw * 3], 3, &k, row);
+            }
+            let mut line = vec![0f32; rl];
+            for ly in ly0..ly1 {
+                pyramid::expand_col(
+                    ly,
+                    sh,
+                    &k,
+                    |sy| &tmp[(sy - lo) * rl..(sy - lo + 1) * rl],
+                    &mut line,
+                );
+                let base = (ly - ly0) * n + ch.x0;
+                for x in 0..ch.w {
+                    let Some(f) = prep.owner((ch.y0 + ly) * n + ch.x0 + x) else {
+                        continue;
+                    };
+                    if face_chart[f as usize] != ci {
+                        continue;
+                    }
+                    let li = ly * ch.w + x;
+                    let mut v = [line[3 * x], line[3 * x + 1], line[3 * x + 2]];
+                    let b = acc.finest[li];
+                    for k in 0..3 {
+                        if !b[k].is_nan() {
+                            v[k] += b[k].to_f32();
+                        }
+                    }
+                    let gi = base + x;
+                    crow[3 * gi..3 * gi + 3].copy_from_slice(&v);
+                    vrow[gi] = acc.views[li];
+                    brow[gi] = acc.best[li];
+                    srow[gi] = if acc.best_w[li] != 0.0 {
+                        TexelSource::Photos as u8
+                    } else {
+                        prep.fallback_source(f) as u8
+                    };
+                }
+            }
+        });
 }
 
 /// Levels chart borders again, on `res`'s current colours: restoration fills texels on both

@@ -161,48 +161,65 @@ pub fn expand(src: &Plane, dw: usize, dh: usize, a: f32) -> Plane {
     // (weights k0, k2, k4); odd outputs 2j+1 read j, j+1 (k1, k3).
     let mut tmp = vec![0f32; dw * sh * c];
     rows_mut(&mut tmp, dw * c, par, |y, row| {
-        let s = &src.d[y * sw * c..(y + 1) * sw * c];
-        for x in 0..dw {
-            let j = (x / 2) as isize;
-            let o = &mut row[x * c..(x + 1) * c];
-            if x % 2 == 0 {
-                let (a0, a1, a2) = (up_src(j - 1, sw), up_src(j, sw), up_src(j + 1, sw));
-                for ch in 0..c {
-                    o[ch] = k[0] * s[a0 * c + ch] + k[2] * s[a1 * c + ch] + k[4] * s[a2 * c + ch];
-                }
-            } else {
-                let (a1, a2) = (up_src(j, sw), up_src(j + 1, sw));
-                for ch in 0..c {
-                    o[ch] = k[1] * s[a1 * c + ch] + k[3] * s[a2 * c + ch];
-                }
-            }
-        }
+        expand_row(&src.d[y * sw * c..(y + 1) * sw * c], c, &k, row)
     });
     let mut out = vec![0f32; dw * dh * c];
     let rl = dw * c;
     rows_mut(&mut out, rl, par, |y, row| {
-        let j = (y / 2) as isize;
-        let r = |jj: isize| {
-            let sy = up_src(jj, sh);
-            &tmp[sy * rl..(sy + 1) * rl]
-        };
-        if y % 2 == 0 {
-            let (r0, r1, r2) = (r(j - 1), r(j), r(j + 1));
-            for (i, o) in row.iter_mut().enumerate() {
-                *o = k[0] * r0[i] + k[2] * r1[i] + k[4] * r2[i];
-            }
-        } else {
-            let (r1, r2) = (r(j), r(j + 1));
-            for (i, o) in row.iter_mut().enumerate() {
-                *o = k[1] * r1[i] + k[3] * r2[i];
-            }
-        }
+        expand_col(y, sh, &k, |sy| &tmp[sy * rl..(sy + 1) * rl], row)
     });
     Plane {
         w: dw,
         h: dh,
         c,
         d: out,
+    }
+}
+
+/// [`expand`]'s horizontal pass: source row `s` (`c` channels) to `row` (as many texels as it
+/// holds), with the doubled kernel `k`. Even outputs 2j read sources j-1, j, j+1 (weights
+/// k0, k2, k4); odd outputs 2j+1 read j, j+1 (k1, k3).
+#[inline]
+pub(crate) fn expand_row(s: &[f32], c: usize, k: &[f32; 5], row: &mut [f32]) {
+    let sw = s.len() / c;
+    for (x, o) in row.chunks_exact_mut(c).enumerate() {
+        let j = (x / 2) as isize;
+        if x % 2 == 0 {
+            let (a0, a1, a2) = (up_src(j - 1, sw), up_src(j, sw), up_src(j + 1, sw));
+            for ch in 0..c {
+                o[ch] = k[0] * s[a0 * c + ch] + k[2] * s[a1 * c + ch] + k[4] * s[a2 * c + ch];
+            }
+        } else {
+            let (a1, a2) = (up_src(j, sw), up_src(j + 1, sw));
+            for ch in 0..c {
+                o[ch] = k[1] * s[a1 * c + ch] + k[3] * s[a2 * c + ch];
+            }
+        }
+    }
+}
+
+/// [`expand`]'s vertical pass for output row `y` of a source `sh` rows high: `row` from the
+/// horizontally expanded source rows `tmp(sy)`, with the doubled kernel `k`.
+#[inline]
+pub(crate) fn expand_col<'a>(
+    y: usize,
+    sh: usize,
+    k: &[f32; 5],
+    tmp: impl Fn(usize) -> &'a [f32],
+    row: &mut [f32],
+) {
+    let j = (y / 2) as isize;
+    let r = |jj: isize| tmp(up_src(jj, sh));
+    if y % 2 == 0 {
+        let (r0, r1, r2) = (r(j - 1), r(j), r(j + 1));
+        for (i, o) in row.iter_mut().enumerate() {
+            *o = k[0] * r0[i] + k[2] * r1[i] + k[4] * r2[i];
+        }
+    } else {
+        let (r1, r2) = (r(j), r(j + 1));
+        for (i, o) in row.iter_mut().enumerate() {
+            *o = k[1] * r1[i] + k[3] * r2[i];
+        }
     }
 }
 
