@@ -210,7 +210,7 @@ pub(crate) fn expand_col<'a>(
 ) {
     let j = (y / 2) as isize;
     let r = |jj: isize| tmp(up_src(jj, sh));
-    if y % 2 == 0 {
+    if y.is_multiple_of(2) {
         let (r0, r1, r2) = (r(j - 1), r(j), r(j + 1));
         for (i, o) in row.iter_mut().enumerate() {
             *o = k[0] * r0[i] + k[2] * r1[i] + k[4] * r2[i];
