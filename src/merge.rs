@@ -855,6 +855,7 @@ fn multiband(
     let (mut seconds_setup, mut seconds_charts) = (0.0, 0.0);
     let cpu_sampling = AtomicU64::new(0);
     progress.start("merging", photos.len() as u64);
+    let heap = crate::io::LargeBlocksInHeap::new();
     // The next photograph's depth map and mip levels are built while this one is sampled.
     let setup = |pi: usize, rgb: &crate::io::image::PhotoPixels| prep.photo_setup(photos, pi, rgb);
     for_each_photo_with(photos, progress, setup, |pi, rgb, mask, setup| {
@@ -880,6 +881,7 @@ fn multiband(
         Ok(())
     })?;
     progress.finish();
+    drop(heap);
     // The complement layer, then collapse, a batch of charts at a time so that finished
     // charts' accumulators are freed as the atlas fills: largest first (their accumulators
     // are the most memory), batches of at most COLLAPSE_BATCH chart texels or two charts,
