@@ -142,9 +142,10 @@ pub fn release_freed_memory() {
     }
 }
 
-/// While alive, the allocator serves blocks up to 256 MB from its heaps and keeps up to
-/// 128 MB free at a heap's top, instead of mapping and unmapping each large block (glibc's
-/// `mallopt`; a no-op elsewhere). A loop that allocates and frees the same large buffers
+/// While alive, the allocator serves blocks up to 256 MB from its heaps (threads' own heaps
+/// still map blocks over their 64 MB size) and keeps up to 128 MB free at a heap's top,
+/// instead of mapping and unmapping each large block (glibc's `mallopt`, which accepts these
+/// values on glibc 2.36; a no-op elsewhere). A loop that allocates and frees the same large buffers
 /// over and over (the merge's per-photograph layers, depth maps and mip levels) then reuses
 /// them: every unmap of a block costs the other core an interrupt to flush its TLB, and every
 /// new map a page fault per 4 KB. Dropping the guard sets glibc's defaults back as its own
