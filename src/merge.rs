@@ -994,9 +994,6 @@ fn write_chart(
 ) {
     const STRIPE: usize = 32;
     let n = prep.size();
-    let k = pyramid::kernel(a).map(|v| 2.0 * v);
-    let (sw, sh) = (coarse.w, coarse.h);
-    let rl = ch.w * 3;
     let rows = ch.y0 * n..(ch.y0 + ch.h) * n;
     color[3 * rows.start..3 * rows.end]
         .par_chunks_mut(3 * STRIPE * n)
@@ -1006,21 +1003,7 @@ fn write_chart(
         .enumerate()
         .for_each(|(si, (((crow, srow), vrow), brow))| {
             let (ly0, ly1) = (si * STRIPE, ((si + 1) * STRIPE).min(ch.h));
-            // The level-1 rows these rows read (reflected ones included), widened.
-            let (lo, hi) = ((ly0 / 2).saturating_sub(1), ((ly1 - 1) / 2 + 1).min(sh - 1));
-            let mut tmp = vec![0f32; (hi - lo + 1) * rl];
-            for (sy, row) in (lo..=hi).zip(tmp.chunks_exact_mut(rl)) {
-                pyramid::expand_row(&coarse.d[sy * sw * 3..(sy + 1) * sw * 3], 3, &k, row);
-            }
-            let mut line = vec![0f32; rl];
-            for ly in ly0..ly1 {
-                pyramid::expand_col(
-                    ly,
-                    sh,
-                    &k,
-                    |sy| &tmp[(sy - lo) * rl..(sy - lo + 1) * rl],
-                    &mut line,
-                );
+            blended_rows(coarse, &acc.finest, ch.w, a, (ly0, ly1), |ly, line| {
                 let base = (ly - ly0) * n + ch.x0;
                 for x in 0..ch.w {
                     let Some(f) = prep.owner((ch.y0 + ly) * n + ch.x0 + x) else {
@@ -1030,15 +1013,8 @@ fn write_chart(
                         continue;
                     }
                     let li = ly * ch.w + x;
-                    let mut v = [line[3 * x], line[3 * x + 1], line[3 * x + 2]];
-                    let b = acc.finest[li];
-                    for k in 0..3 {
-                        if !b[k].is_nan() {
-                            v[k] += b[k].to_f32();
-                        }
-                    }
                     let gi = base + x;
-                    crow[3 * gi..3 * gi + 3].copy_from_slice(&v);
+                    crow[3 * gi..3 * gi + 3].copy_from_slice(&line[3 * x..3 * x + 3]);
                     vrow[gi] = acc.views[li];
                     brow[gi] = acc.best[li];
                     srow[gi] = if acc.best_w[li] != 0.0 {
@@ -1047,8 +1023,43 @@ fn write_chart(
                         prep.fallback_source(f) as u8
                     };
                 }
-            }
+            });
         });
+}
+
+/// Rows `ly0..ly1` of a best-view chart `w` texels wide: its collapsed level 1 `coarse`
+/// expanded (the arithmetic of [`pyramid::expand`] on the whole chart) plus the finest band
+/// `finest` where known; calls `row(y, rgb values)` for each.
+fn blended_rows(
+    coarse: &Plane,
+    finest: &[[f16; 3]],
+    w: usize,
+    a: f32,
+    (ly0, ly1): (usize, usize),
+    mut row: impl FnMut(usize, &[f32]),
+) {
+    let k = pyramid::kernel(a).map(|v| 2.0 * v);
+    let (sw, sh) = (coarse.w, coarse.h);
+    let rl = w * 3;
+    // The level-1 rows these rows read (reflected ones included), widened.
+    let (lo, hi) = ((ly0 / 2).saturating_sub(1), ((ly1 - 1) / 2 + 1).min(sh - 1));
+    let mut tmp = vec![0f32; (hi - lo + 1) * rl];
+    for (sy, r) in (lo..=hi).zip(tmp.chunks_exact_mut(rl)) {
+        pyramid::expand_row(&coarse.d[sy * sw * 3..(sy + 1) * sw * 3], 3, &k, r);
+    }
+    let mut line = vec![0f32; rl];
+    for ly in ly0..ly1 {
+        let src = |sy: usize| &tmp[(sy - lo) * rl..(sy - lo + 1) * rl];
+        pyramid::expand_col(ly, sh, &k, src, &mut line);
+        for (v, b) in line.chunks_exact_mut(3).zip(&finest[ly * w..(ly + 1) * w]) {
+            for c in 0..3 {
+                if !b[c].is_nan() {
+                    v[c] += b[c].to_f32();
+                }
+            }
+        }
+        row(ly, &line);
+    }
 }
 
 /// Levels chart borders again, on `res`'s current colours: restoration fills texels on both
@@ -1400,7 +1411,19 @@ mod tests {
             layer.reduce();
             let fine = (0..w * h).map(|i| (i % w, i / w, colours[i], 1.0));
             layer.accumulate(&mut acc, winner, fine);
-            let out = acc.collapse(0.4, winner);
+            let mut out = acc.collapse(0.4, winner);
+            if winner {
+                // The coarser levels only: expanded with the finest band, a stripe of rows
+                // at a time as `write_chart` does, they give the image back.
+                assert_eq!((out.w, out.h), (w.div_ceil(2), h.div_ceil(2)));
+                let mut img = vec![0f32; w * h * 3];
+                for y0 in (0..h).step_by(7) {
+                    blended_rows(&out, &acc.finest, w, 0.4, (y0, (y0 + 7).min(h)), |y, l| {
+                        img[y * w * 3..(y + 1) * w * 3].copy_from_slice(l)
+                    });
+                }
+                out = Plane::from_vec(w, h, 3, img).unwrap();
+            }
             let flat: Vec<f32> = colours.iter().flatten().copied().collect();
             let d = max_diff(&out.d, &flat);
             // Half precision holds the finest band with best-view masks.
