@@ -853,9 +853,9 @@ impl<'a> Prepared<'a> {
         let fv = mesh.faces[f as usize];
         let pos: [Point3<f64>; 3] = std::array::from_fn(|k| mesh.positions[fv[k].idx()]);
         let nrm: [Vector3<f64>; 3] = std::array::from_fn(|k| self.normals[fv[k].idx()]);
-        // Per face, from the photograph's projected vertices: for triangles a few pixels
-        // across, an affine map texel -> pixel (the perspective and distortion error over such
-        // a triangle is far below a pixel); per-texel projection otherwise.
+        // Per face, from the photograph's projected vertices: an affine map texel -> pixel
+        // where `affine_fits` finds its error far below a pixel; per-texel projection
+        // otherwise.
         let proj = fv.map(|v| ph.projected[v.idx()]);
         let affine = match proj {
             [Some(a), Some(b), Some(c)] => {
