@@ -331,6 +331,19 @@ fn for_taps_in<const NX: usize, const NY: usize>(
     }
 }
 
+/// One splat contribution of weight `wt`: colour sums and weight into `d`, mask sum into
+/// `mask` (both splat paths share it, so that they add the same numbers).
+#[inline(always)]
+fn add_splat(d: &mut [f32], mask: &mut f32, wt: f32, c: [f32; 3], m: f32) {
+    d[0] += wt * c[0];
+    d[1] += wt * c[1];
+    d[2] += wt * c[2];
+    d[3] += wt;
+    if m > 0.0 {
+        *mask += wt * m;
+    }
+}
+
 /// [`Layer::splat`]'s sums for taps `xw` x `yw` from texel `(x0, y0)` of a level-1 buffer
 /// `gw` wide (colour sums and weight in `g`, mask sums in `mask`).
 #[allow(clippy::too_many_arguments)]
@@ -351,15 +364,7 @@ fn splat_block<const NX: usize, const NY: usize>(
         let d = &mut g[4 * row..4 * (row + NX)];
         let ms = &mut mask[row..row + NX];
         for (a, &wx) in xw.iter().enumerate() {
-            let wt = wx * wy * w;
-            let e = &mut d[4 * a..4 * a + 4];
-            e[0] += wt * c[0];
-            e[1] += wt * c[1];
-            e[2] += wt * c[2];
-            e[3] += wt;
-            if m > 0.0 {
-                ms[a] += wt * m;
-            }
+            add_splat(&mut d[4 * a..4 * a + 4], &mut ms[a], wx * wy * w, c, m);
         }
     }
 }
@@ -457,17 +462,7 @@ impl Layer {
             down_taps(y, nh, &self.k),
             (self.ox / 2, self.oy / 2),
             (gw, gh),
-            |i, kw| {
-                let wt = kw * w;
-                let d = &mut g.d[4 * i..4 * i + 4];
-                d[0] += wt * c[0];
-                d[1] += wt * c[1];
-                d[2] += wt * c[2];
-                d[3] += wt;
-                if m > 0.0 {
-                    mask[i] += wt * m;
-                }
-            },
+            |i, kw| add_splat(&mut g.d[4 * i..4 * i + 4], &mut mask[i], kw * w, c, m),
         );
     }
 
@@ -920,37 +915,24 @@ fn multiband(
             .collect();
         for (img, (ci, acc)) in done.into_iter().zip(work) {
             let ch = &charts[ci];
-            if winner_mode && ch.levels > 0 {
-                let out = (
-                    &mut color[..],
-                    &mut source[..],
-                    &mut views[..],
-                    &mut best[..],
-                );
-                write_chart(&prep, ch, ci as u32, &face_chart, &img, &acc, a, out);
-                continue;
-            }
-            for y in 0..ch.h {
-                for x in 0..ch.w {
-                    let (gx, gy) = (ch.x0 + x, ch.y0 + y);
-                    let gi = gy * n + gx;
-                    let Some(f) = prep.owner(gi) else {
-                        continue;
-                    };
-                    if face_chart[f as usize] != ci as u32 {
-                        continue;
-                    }
-                    let li = y * ch.w + x;
-                    color[3 * gi..3 * gi + 3].copy_from_slice(&img.d[3 * li..3 * li + 3]);
-                    views[gi] = acc.views[li];
-                    best[gi] = acc.best[li];
-                    source[gi] = if acc.best_w[li] != 0.0 {
-                        TexelSource::Photos as u8
-                    } else {
-                        prep.fallback_source(f) as u8
-                    };
-                }
-            }
+            let expand = winner_mode && ch.levels > 0;
+            let out = (
+                &mut color[..],
+                &mut source[..],
+                &mut views[..],
+                &mut best[..],
+            );
+            write_chart(
+                &prep,
+                ch,
+                ci as u32,
+                &face_chart,
+                &img,
+                expand,
+                &acc,
+                a,
+                out,
+            );
         }
         crate::io::release_freed_memory();
     }
@@ -977,17 +959,19 @@ fn multiband(
     Ok(out)
 }
 
-/// Writes chart `ch` (number `ci`) with best-view masks into the atlas arrays `out` (colour,
-/// source, views, best photograph): `coarse`, its collapsed level 1, expanded a stripe of
-/// rows at a time, plus the finest band in `acc`, at the texels the chart owns. The same
-/// arithmetic as [`pyramid::expand`] on the whole chart, without a chart-sized image.
+/// Writes chart `ch` (number `ci`) into the atlas arrays `out` (colour, source, views, best
+/// photograph) at the texels it owns, a stripe of rows at a time in parallel. `img` is the
+/// collapsed chart, or with `expand` (best-view masks, coarser levels) its level 1, expanded
+/// by [`blended_rows`] with the finest band in `acc`: the same arithmetic as
+/// [`pyramid::expand`] on the whole chart, without a chart-sized image.
 #[allow(clippy::too_many_arguments)]
 fn write_chart(
     prep: &Prepared,
     ch: &Chart,
     ci: u32,
     face_chart: &[u32],
-    coarse: &Plane,
+    img: &Plane,
+    expand: bool,
     acc: &ChartAcc,
     a: f32,
     (color, source, views, best): (&mut [f32], &mut [u8], &mut [u8], &mut [u16]),
@@ -1003,7 +987,7 @@ fn write_chart(
         .enumerate()
         .for_each(|(si, (((crow, srow), vrow), brow))| {
             let (ly0, ly1) = (si * STRIPE, ((si + 1) * STRIPE).min(ch.h));
-            blended_rows(coarse, &acc.finest, ch.w, a, (ly0, ly1), |ly, line| {
+            let mut write = |ly: usize, line: &[f32]| {
                 let base = (ly - ly0) * n + ch.x0;
                 for x in 0..ch.w {
                     let Some(f) = prep.owner((ch.y0 + ly) * n + ch.x0 + x) else {
@@ -1023,7 +1007,15 @@ fn write_chart(
                         prep.fallback_source(f) as u8
                     };
                 }
-            });
+            };
+            if expand {
+                blended_rows(img, &acc.finest, ch.w, a, (ly0, ly1), &mut write);
+            } else {
+                let rl = 3 * ch.w;
+                for ly in ly0..ly1 {
+                    write(ly, &img.d[ly * rl..(ly + 1) * rl]);
+                }
+            }
         });
 }
 
