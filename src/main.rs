@@ -148,6 +148,11 @@ enum Command {
         /// only (0 = all at every texel; slower, same finest band).
         #[arg(long, default_value_t = 2)]
         full_views: usize,
+        /// Multiband with best-view masks: the finest band blends the fully sampled
+        /// photographs by their view weights to this power (0 = equally; larger favours the
+        /// best view; inf = the best view alone, which leaves a step where it changes).
+        #[arg(long, default_value_t = 2.0)]
+        fine_exponent: f32,
         /// Multiband: leave chart borders as blended, without the smooth per-chart correction
         /// that makes both sides of every border agree.
         #[arg(long)]
@@ -465,6 +470,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             levels,
             kernel_a,
             full_views,
+            fine_exponent,
             no_seam_levelling,
             no_restore,
             restore_method,
@@ -501,6 +507,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             opts.merge.levels = levels;
             opts.merge.a = kernel_a;
             opts.merge.full_views = full_views;
+            opts.merge.fine_exponent = fine_exponent;
             opts.merge.level_seams = !no_seam_levelling;
             opts.restoration = if no_restore {
                 scantex::pipeline::Restoration::Off

@@ -67,9 +67,10 @@ pub enum Masks {
     /// Every texel a photograph sees, weighted by its view weight relative to the face's best
     /// (so a grazing view counts little in every band).
     Weighted,
-    /// As `Weighted` for every band but the finest, which comes from the photograph with the
-    /// largest weight alone: coarse bands blend, fine detail is never averaged across
-    /// slightly misregistered photographs (default).
+    /// As `Weighted` for every band but the finest, which comes from the photographs of
+    /// largest weight only ([`MergeOptions::full_views`] per face), blended by their view
+    /// weights raised to [`MergeOptions::fine_exponent`]: coarse bands blend, fine detail is
+    /// never averaged across many slightly misregistered photographs (default).
     BestView,
 }
 
@@ -110,6 +111,13 @@ pub struct MergeOptions {
     /// the samples) and enter only the coarser bands, which is all best-view masks take from
     /// them. 0 = every photograph at every texel. Default: 2 (`docs/decisions.md`).
     pub full_views: usize,
+    /// [`Masks::BestView`]: the finest band is the mean of the photographs sampled at every
+    /// texel weighted by their view weights to this power: 0 weights them equally, larger
+    /// values favour the best view, infinity takes it alone (winner-take-all, which leaves a
+    /// step wherever the best photograph changes). Default: 2 (`docs/decisions.md`: on the
+    /// corset view-boundary ratio 1.19 with the best view alone, 1.09 at 2, held-out 1 - NCC
+    /// unchanged).
+    pub fine_exponent: f32,
 }
 
 impl Default for MergeOptions {
@@ -121,6 +129,7 @@ impl Default for MergeOptions {
             a: 0.4,
             level_seams: true,
             full_views: 2,
+            fine_exponent: 2.0,
         }
     }
 }
@@ -132,6 +141,12 @@ impl MergeOptions {
             return Err(Error::Invalid(format!(
                 "merge levels = {} must lie in 0..=12",
                 self.levels
+            )));
+        }
+        if self.fine_exponent.is_nan() || self.fine_exponent < 0.0 {
+            return Err(Error::Invalid(format!(
+                "fine exponent = {} must be 0 or more (inf: the best view alone)",
+                self.fine_exponent
             )));
         }
         if !(0.2..=0.5).contains(&self.a) {
@@ -245,11 +260,51 @@ fn ring_valid(mesh: &Mesh, b: &Binding) -> Vec<Vec<u32>> {
 }
 
 /// `ChartAcc::best_w` of a texel only coarse samples saw (no photograph's finest band).
-const COARSE_SEEN: f32 = -1.0;
+const COARSE_SEEN: f16 = f16::NEG_ONE;
 
 /// Chart texels (of bounding rectangles) collapsed in one parallel batch: bounds the
 /// collapsed images held before they are copied into the atlas.
 const COLLAPSE_BATCH: usize = 1 << 22;
+
+/// A photograph's weight in the best-view finest band lies within these (half precision
+/// holds sums of a few of them, `ChartAcc::finest_w`); the upper one bounds sums too.
+const FINE_WEIGHT_MIN: f32 = 1.0 / 4096.0;
+const FINE_WEIGHT_MAX: f32 = 16384.0;
+
+/// A photograph's weight in the best-view finest band: its view weight `wt` relative to the
+/// face's best view, to the power `exponent` (finite), clamped to what half precision holds.
+#[inline]
+fn fine_weight(wt: f32, reference: f32, exponent: f32) -> f32 {
+    let r = if reference > 0.0 { wt / reference } else { 1.0 };
+    // The default exponent without `powf` in the sampling loop.
+    let m = if exponent == 2.0 {
+        r * r
+    } else {
+        r.powf(exponent)
+    };
+    m.clamp(FINE_WEIGHT_MIN, FINE_WEIGHT_MAX)
+}
+
+/// A texel's view weight `wt` relative to its face's best view `reference` (the weight
+/// itself where no reference), in half precision for `ChartAcc::best_w`: a texel belongs
+/// to one face, so the order of its photographs is kept but for weights within 5e-4 of each
+/// other, where the first stays the best.
+#[inline]
+fn relative_weight(wt: f32, reference: f32) -> f16 {
+    let r = if reference > 0.0 { wt / reference } else { wt };
+    if r > 0.0 {
+        // Positive weights stay positive (0 means unseen).
+        f16::from_f32(r).max(f16::from_bits(1))
+    } else {
+        f16::ZERO
+    }
+}
+
+/// Fixed-point scale of the colours a layer holds for its finest band: steps of 1.2e-4
+/// (far below 8-bit output's 3.9e-3, and finer than half precision's 4.9e-4 near 1), up
+/// to 8 (photographs' values are at most 1, gains and shading correction scale them by a
+/// few tenths).
+const FINE_COLOUR_SCALE: f32 = 8192.0;
 
 /// Below this a sum of weights counts as nothing.
 const EPS: f32 = 1e-12;
@@ -488,18 +543,46 @@ impl Layer {
     fn expanded(&self, l: usize, x: usize, y: usize) -> Option<[f32; 3]> {
         let g = &self.g[l];
         let (nw, nh) = self.chart[l + 1];
+        let (bx, by) = (self.ox >> (l + 1), self.oy >> (l + 1));
         let mut s = [0f32; 4];
-        for_taps_in(
-            up_taps(x, nw, &self.k),
-            up_taps(y, nh, &self.k),
-            (self.ox >> (l + 1), self.oy >> (l + 1)),
-            (g.w, g.h),
-            |i, wt| {
-                for (sk, v) in s.iter_mut().zip(&g.d[4 * i..4 * i + 4]) {
-                    *sk += wt * v;
+        let (jx, jy) = (x / 2, y / 2);
+        if jx > bx && jx + 2 < (bx + g.w).min(nw) && jy > by && jy + 2 < (by + g.h).min(nh) {
+            // Away from the chart's and the part's borders the taps are the kernel's, by
+            // parity alone: three per axis from the one before, the third of weight 0 for
+            // odd coordinates. The same sums, in the same order, as the general taps (adding
+            // zeros changes no bit).
+            let k2 = self.k.map(|v| 2.0 * v);
+            let taps = |v: usize, j: usize| {
+                if v.is_multiple_of(2) {
+                    ([k2[0], k2[2], k2[4]], j - 1)
+                } else {
+                    ([k2[1], k2[3], 0.0], j)
                 }
-            },
-        );
+            };
+            let ((wx, x0), (wy, y0)) = (taps(x, jx), taps(y, jy));
+            for (b, wyb) in wy.iter().enumerate() {
+                let row = (y0 - by + b) * g.w + x0 - bx;
+                for (a, wxa) in wx.iter().enumerate() {
+                    let wt = wxa * wyb;
+                    let i = 4 * (row + a);
+                    for (sk, v) in s.iter_mut().zip(&g.d[i..i + 4]) {
+                        *sk += wt * v;
+                    }
+                }
+            }
+        } else {
+            for_taps_in(
+                up_taps(x, nw, &self.k),
+                up_taps(y, nh, &self.k),
+                (bx, by),
+                (g.w, g.h),
+                |i, wt| {
+                    for (sk, v) in s.iter_mut().zip(&g.d[4 * i..4 * i + 4]) {
+                        *sk += wt * v;
+                    }
+                },
+            );
+        }
         (s[3] > EPS).then(|| [s[0] / s[3], s[1] / s[3], s[2] / s[3]])
     }
 
@@ -519,8 +602,8 @@ impl Layer {
 
     /// Adds the layer's bands under its mask to `acc`: levels 1 and up from the reduced
     /// planes, level 0 from `fine`, the level-0 texels (chart coordinates, colour, mask) that
-    /// enter it (with best-view masks, those where this layer wins, stored as the finest band
-    /// instead).
+    /// enter it (with best-view masks, into the running mean `finest`, which a mask of
+    /// infinity replaces).
     fn accumulate(
         &self,
         acc: &mut ChartAcc,
@@ -554,7 +637,30 @@ impl Layer {
             let band = self.band(0, x, y, c);
             let gi = y * cw + x;
             if winner_mode {
-                acc.finest[gi] = band.map(f16::from_f32);
+                let mean = &mut acc.finest[3 * gi..3 * gi + 3];
+                let Some(sum) = acc.finest_w.get_mut(gi) else {
+                    // The weights are gone once the photographs are in: what comes after
+                    // (the complement) enters only texels no photograph did.
+                    for (m, b) in mean.iter_mut().zip(band) {
+                        *m = f16::from_f32(b);
+                    }
+                    continue;
+                };
+                if mw == f32::INFINITY {
+                    for (m, b) in mean.iter_mut().zip(band) {
+                        *m = f16::from_f32(b);
+                    }
+                    *sum = f16::ONE;
+                } else if mw > 0.0 {
+                    // Weights stay within half precision's range (`fine_weight`).
+                    let total = sum.to_f32() + mw;
+                    let share = mw / total;
+                    for (m, b) in mean.iter_mut().zip(band) {
+                        let v = m.to_f32();
+                        *m = f16::from_f32(v + share * (b - v));
+                    }
+                    *sum = f16::from_f32(total.min(FINE_WEIGHT_MAX));
+                }
             } else if mw > 0.0 {
                 acc.den[0][gi] += mw;
                 for (v, b) in acc.num[0].d[3 * gi..3 * gi + 3].iter_mut().zip(band) {
@@ -657,6 +763,13 @@ fn reduce_rows_any(src: &[f32], w: usize, c: usize, cols: &[Taps], tmp: &mut [f3
     }
 }
 
+/// `n` half-precision zeros, from zeroed memory: pages the merge never writes (parts of
+/// chart rectangles that are other charts' texels or gutter) are never made resident.
+fn zeros_f16(n: usize) -> Vec<f16> {
+    use half::vec::HalfBitsVecExt;
+    vec![0u16; n].reinterpret_into()
+}
+
 /// A chart's band accumulators.
 struct ChartAcc {
     /// Per level: mask-weighted band sums (3 channels); for [`Masks::BestView`] level 0 is
@@ -664,13 +777,18 @@ struct ChartAcc {
     num: Vec<Plane>,
     /// Per level: mask sums (level 0 empty for [`Masks::BestView`]).
     den: Vec<Vec<f32>>,
-    /// [`Masks::BestView`]: the best photograph's finest band, in half precision (an error
-    /// under 5e-4 for bands within +-1, below half a step of 8-bit output), NaN where no
-    /// layer has won yet. At 8192 this and the dropped level-0 mask sums save 10 bytes per
-    /// chart texel, about 0.5 GB.
-    finest: Vec<[f16; 3]>,
-    /// Largest view weight so far and its photograph, photographs seen, per texel.
-    best_w: Vec<f32>,
+    /// [`Masks::BestView`]: the finest band's running weighted mean, in half precision (an
+    /// error under 5e-4 for bands within +-1, below half a step of 8-bit output), 0 where
+    /// no layer has entered it. At 8192 this and its weights in place of full-precision
+    /// level-0 sums save 8 bytes per chart texel, about 0.4 GB.
+    finest: Vec<f16>,
+    /// [`Masks::BestView`]: the weights summed into `finest` (1 once some layer entered it,
+    /// with the best view alone, which replaces rather than averages). Freed after the
+    /// photographs on charts with coarser levels (`multiband`), before the peak.
+    finest_w: Vec<f16>,
+    /// Largest view weight so far (relative to the face's best view, `relative_weight`) and
+    /// its photograph, photographs seen, per texel.
+    best_w: Vec<f16>,
     best: Vec<u16>,
     views: Vec<u8>,
     /// [`Masks::Paper`]: the weighted mean of the photographs (stage 3's texture), which the
@@ -703,11 +821,16 @@ impl ChartAcc {
             num,
             den,
             finest: if winner_mode {
-                vec![[f16::NAN; 3]; n]
+                zeros_f16(3 * n)
             } else {
                 Vec::new()
             },
-            best_w: vec![0.0; n],
+            finest_w: if winner_mode {
+                zeros_f16(n)
+            } else {
+                Vec::new()
+            },
+            best_w: zeros_f16(n),
             best: vec![NO_PHOTO; n],
             views: vec![0; n],
             avg: paper.then(|| vec![[0.0; 4]; n]),
@@ -737,15 +860,13 @@ impl ChartAcc {
             }
         }
         if winner_mode && top == 0 {
-            // A chart too small for a pyramid: its one level is the winners' colours, known
-            // where some layer won.
+            // A chart too small for a pyramid: its one level is the blended colours, known
+            // where some layer entered.
             let (w, h) = (self.num[0].w, self.num[0].h);
             let finest = std::mem::take(&mut self.finest);
-            self.den[0] = finest.iter().map(|b| f32::from(!b[0].is_nan())).collect();
-            let d: Vec<f32> = finest
-                .iter()
-                .flat_map(|b| b.map(|v| if v.is_nan() { 0.0 } else { v.to_f32() }))
-                .collect();
+            let weights = std::mem::take(&mut self.finest_w);
+            self.den[0] = weights.iter().map(|&b| f32::from(b > f16::ZERO)).collect();
+            let d: Vec<f32> = finest.iter().map(|v| v.to_f32()).collect();
             self.num[0] = Plane::from_vec(w, h, 3, d).expect("sized");
         }
         // The coarsest level is a colour, not a band: where no mask reaches it, extend the
@@ -877,6 +998,14 @@ fn multiband(
     })?;
     progress.finish();
     drop(heap);
+    // The finest band's weights matter no more but for the coverage of charts without
+    // coarser levels (`ChartAcc::collapse`): 2 bytes per chart texel less at the peak.
+    for (acc, ch) in accs.iter_mut().zip(&charts) {
+        if ch.levels > 0 {
+            acc.finest_w = Vec::new();
+        }
+    }
+    crate::io::release_freed_memory();
     // The complement layer, then collapse, a batch of charts at a time so that finished
     // charts' accumulators are freed as the atlas fills: largest first (their accumulators
     // are the most memory), batches of at most COLLAPSE_BATCH chart texels or two charts,
@@ -1001,7 +1130,7 @@ fn write_chart(
                     crow[3 * gi..3 * gi + 3].copy_from_slice(&line[3 * x..3 * x + 3]);
                     vrow[gi] = acc.views[li];
                     brow[gi] = acc.best[li];
-                    srow[gi] = if acc.best_w[li] != 0.0 {
+                    srow[gi] = if acc.best_w[li] != f16::ZERO {
                         TexelSource::Photos as u8
                     } else {
                         prep.fallback_source(f) as u8
@@ -1021,10 +1150,10 @@ fn write_chart(
 
 /// Rows `ly0..ly1` of a best-view chart `w` texels wide: its collapsed level 1 `coarse`
 /// expanded (the arithmetic of [`pyramid::expand`] on the whole chart) plus the finest band
-/// `finest` where known; calls `row(y, rgb values)` for each.
+/// `finest`; calls `row(y, rgb values)` for each.
 fn blended_rows(
     coarse: &Plane,
-    finest: &[[f16; 3]],
+    finest: &[f16],
     w: usize,
     a: f32,
     (ly0, ly1): (usize, usize),
@@ -1043,12 +1172,9 @@ fn blended_rows(
     for ly in ly0..ly1 {
         let src = |sy: usize| &tmp[(sy - lo) * rl..(sy - lo + 1) * rl];
         pyramid::expand_col(ly, sh, &k, src, &mut line);
-        for (v, b) in line.chunks_exact_mut(3).zip(&finest[ly * w..(ly + 1) * w]) {
-            for c in 0..3 {
-                if !b[c].is_nan() {
-                    v[c] += b[c].to_f32();
-                }
-            }
+        // Zero where no layer entered the finest band.
+        for (v, b) in line.iter_mut().zip(&finest[ly * rl..(ly + 1) * rl]) {
+            *v += b.to_f32();
         }
         row(ly, &line);
     }
@@ -1111,8 +1237,17 @@ fn add_photo(
     let (w, h) = ((bx1 + pad).min(ch.w) - ox, (by1 + pad).min(ch.h) - oy);
     let mut layer = Layer::new((ox, oy), (w, h), acc.sizes(), mopts.a);
     let winner_mode = mopts.masks == Masks::BestView;
-    // The level-0 texels that enter the finest band: (chart x, chart y, colour, mask).
-    let mut fine: Vec<(u32, u32, [f32; 3], f32)> = Vec::new();
+    let fine_alone = mopts.fine_exponent == f32::INFINITY;
+    // The level-0 texels that enter the finest band (chart x | y << 16, colour, mask), held
+    // until the layer's coarser levels are built, in 12 bytes: with blended finest bands a
+    // photograph keeps every texel it samples at full resolution, up to millions on one
+    // chart. Colours in fixed point (`FINE_COLOUR_SCALE`).
+    let mut fine: Vec<(u32, [u16; 3], f16)> = Vec::new();
+    let fine_texel = |x: usize, y: usize, c: [f32; 3], m: f32| {
+        // Charts are at most 32768 texels wide and high (the atlas's limit).
+        let c = c.map(|v| (v * FINE_COLOUR_SCALE + 0.5).clamp(0.0, 65535.0) as u16);
+        ((x | y << 16) as u32, c, f16::from_f32(m))
+    };
     let mut any_mask = false;
     let n = prep.size();
     for &f in &ch.faces {
@@ -1150,7 +1285,7 @@ fn add_photo(
                     }
                     let i = by * ch.w + bx;
                     acc.views[i] = acc.views[i].saturating_add(1);
-                    if acc.best_w[i] == 0.0 {
+                    if acc.best_w[i] == f16::ZERO {
                         acc.best_w[i] = COARSE_SEEN;
                         acc.best[i] = photo as u16;
                     }
@@ -1167,9 +1302,10 @@ fn add_photo(
             let i = y * ch.w + x;
             acc.views[i] = acc.views[i].saturating_add(1);
             // Photographs come in order, so ties keep the first: deterministic.
-            let wins = wt > acc.best_w[i];
+            let rel = relative_weight(wt, reference);
+            let wins = rel > acc.best_w[i];
             if wins {
-                acc.best_w[i] = wt;
+                acc.best_w[i] = rel;
                 acc.best[i] = photo as u16;
             }
             if let Some(avg) = &mut acc.avg {
@@ -1180,8 +1316,19 @@ fn add_photo(
             }
             layer.splat(x, y, c, m, 1.0);
             any_mask |= m > 0.0;
-            if (winner_mode && wins) || (!winner_mode && m > 0.0) {
-                fine.push((x as u32, y as u32, c, m));
+            if winner_mode {
+                // Into the finest band's running mean, or with an infinite exponent in place
+                // of it where this photograph wins.
+                if fine_alone {
+                    if wins {
+                        fine.push(fine_texel(x, y, c, f32::INFINITY));
+                    }
+                } else {
+                    let mf = fine_weight(wt, reference, mopts.fine_exponent);
+                    fine.push(fine_texel(x, y, c, mf));
+                }
+            } else if m > 0.0 {
+                fine.push(fine_texel(x, y, c, m));
             }
         });
     }
@@ -1190,9 +1337,10 @@ fn add_photo(
         return;
     }
     layer.reduce();
-    let fine = fine
-        .into_iter()
-        .map(|(x, y, c, m)| (x as usize, y as usize, c, m));
+    let fine = fine.into_iter().map(|(xy, c, m)| {
+        let (x, y) = ((xy & 0xffff) as usize, (xy >> 16) as usize);
+        (x, y, c.map(|v| v as f32 / FINE_COLOUR_SCALE), m.to_f32())
+    });
     layer.accumulate(acc, winner_mode, fine);
 }
 
@@ -1211,7 +1359,7 @@ fn add_complement(
     // No photograph's mask covers the texel (best-view masks are positive exactly where a
     // view weight is). Decided before the layer adds to the level-0 sums.
     let uncovered: Vec<bool> = if winner_mode {
-        acc.best_w.iter().map(|&b| b == 0.0).collect()
+        acc.best_w.iter().map(|&b| b == f16::ZERO).collect()
     } else {
         acc.den[0].iter().map(|&d| d <= 0.0).collect()
     };
@@ -1422,6 +1570,51 @@ mod tests {
             let tol = if winner { 1e-3 } else { 1e-5 };
             assert!(d < tol, "winner {winner}: {d}");
         }
+    }
+
+    /// Best-view masks: the finest band is the mean of the layers' finest bands weighted by
+    /// their fine weights (whatever order they come in), while the coarser bands follow the
+    /// coarse masks; an infinite weight replaces what came before.
+    #[test]
+    fn the_finest_band_is_the_fine_weighted_mean_of_the_layers() {
+        let (w, h, levels) = (40, 36, 2);
+        let layers = [random_layer(w, h, 3), random_layer(w, h, 5)];
+        // Each layer's own finest band, from a lone run.
+        let finest_of = |fine_w: &[f32]| {
+            let mut acc = ChartAcc::new(&chart(w, h, levels), false, true);
+            for (colours, &mf) in layers.iter().zip(fine_w) {
+                let mut layer = Layer::new((0, 0), (w, h), acc.sizes(), 0.4);
+                for y in 0..h {
+                    for x in 0..w {
+                        layer.splat(x, y, colours[y * w + x], 1.0, 1.0);
+                    }
+                }
+                layer.reduce();
+                let fine = (0..w * h).map(|i| (i % w, i / w, colours[i], mf));
+                layer.accumulate(&mut acc, true, fine);
+            }
+            acc.finest.iter().map(|v| v.to_f32()).collect::<Vec<f32>>()
+        };
+        let alone_a = finest_of(&[1.0, 0.0]);
+        let alone_b = finest_of(&[0.0, 1.0]);
+        assert!(max_diff(&alone_a, &alone_b) > 0.05, "the layers differ");
+        let expect: Vec<f32> = alone_a
+            .iter()
+            .zip(&alone_b)
+            .map(|(a, b)| 0.75 * a + 0.25 * b)
+            .collect();
+        // Half-precision running means: a few units of 5e-4.
+        for fine_w in [[3.0, 1.0], [0.75, 0.25]] {
+            let d = max_diff(&finest_of(&fine_w), &expect);
+            assert!(d < 2e-3, "weights {fine_w:?}: {d}");
+        }
+        let d = max_diff(&finest_of(&[1.0, f32::INFINITY]), &alone_b);
+        assert!(d == 0.0, "an infinite weight replaces: {d}");
+        // The weights: view weight relative to the face's best, to the exponent.
+        assert_eq!(fine_weight(0.5, 2.0, 2.0), 0.0625);
+        assert!((fine_weight(3.0, 2.0, 1.5) - 1.5f32.powf(1.5)).abs() < 1e-6);
+        assert_eq!(fine_weight(0.3, 2.0, 0.0), 1.0);
+        assert_eq!(fine_weight(1e-6, 1.0, 2.0), FINE_WEIGHT_MIN);
     }
 
     #[test]

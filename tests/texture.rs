@@ -150,7 +150,8 @@ fn torus() -> Scene {
     .unwrap()
 }
 
-fn texture_to(scene: &Path, opts: &TextureOptions, out: &Path) {
+/// Textures `scene` into `out`; returns the report.
+fn texture_to(scene: &Path, opts: &TextureOptions, out: &Path) -> scantex::pipeline::TextureReport {
     let s = Scene::load(&SceneSpec {
         dir: Some(scene.into()),
         ..Default::default()
@@ -159,6 +160,7 @@ fn texture_to(scene: &Path, opts: &TextureOptions, out: &Path) {
     let (mesh, _) = s.mesh.as_ref().unwrap();
     let r = texture(mesh, &s.photos, opts, &Silent).unwrap();
     write_outputs(out, &r, TextureFormat::Png, None).unwrap();
+    r.report
 }
 
 #[test]
@@ -303,6 +305,42 @@ fn multiband_hides_view_seams_that_winner_take_all_shows() {
     assert!(ratios[0] > 3.0, "{ratios:?}");
     assert!(ratios[2] < 0.25 * ratios[0], "{ratios:?}");
     assert!(ratios[2] < ratios[1], "{ratios:?}");
+}
+
+/// Blending the finest band between the fully sampled photographs (the default exponent)
+/// removes the step the best view alone leaves where it changes, at no cost on held-out
+/// views (the full measurement is benches/merge_compare.py).
+#[test]
+fn blending_the_finest_band_closes_the_best_view_steps() {
+    let scene = common::root().join("samples/torus");
+    let dir = tempfile::tempdir().unwrap();
+    let mut runs = Vec::new();
+    for exponent in [f32::INFINITY, 2.0] {
+        let mut opts = TextureOptions::default();
+        opts.atlas.pack.size = 2048;
+        opts.merge.fine_exponent = exponent;
+        let out = dir.path().join(format!("e{exponent}"));
+        let seams = texture_to(&scene, &opts, &out).seams;
+        let rep = scantex::eval::evaluate_scene(
+            &out.join("model.obj"),
+            &SceneSpec {
+                dir: Some(scene.join("heldout")),
+                ..Default::default()
+            },
+            &scantex::eval::EvalOptions { gain_fit: true },
+        )
+        .unwrap()
+        .mean
+        .unwrap();
+        runs.push((seams.view_boundary_ratio, rep.psnr, rep.one_minus_ncc));
+    }
+    let ((alone, p_alone, n_alone), (blend, p_blend, n_blend)) = (runs[0], runs[1]);
+    eprintln!("best view alone {:?}, blended {:?}", runs[0], runs[1]);
+    assert!(blend < alone - 0.03 && blend < 1.1, "{runs:?}");
+    assert!(
+        p_blend > p_alone - 0.05 && n_blend < n_alone * 1.01,
+        "{runs:?}"
+    );
 }
 
 /// Sampling all but the two heaviest photographs of a face at a quarter of the texels (they
