@@ -302,8 +302,8 @@ fn relative_weight(wt: f32, reference: f32) -> f16 {
 
 /// Fixed-point scale of the colours a layer holds for its finest band: steps of 1.2e-4
 /// (far below 8-bit output's 3.9e-3, and finer than half precision's 4.9e-4 near 1), up
-/// to 8 (photographs' values are at most 1, gains and shading correction scale them by a
-/// few tenths).
+/// to 8 (photographs' values are at most 1 before the gains scale them; a colour beyond 8
+/// would be clipped in the finest band only).
 const FINE_COLOUR_SCALE: f32 = 8192.0;
 
 /// Below this a sum of weights counts as nothing.
@@ -543,46 +543,18 @@ impl Layer {
     fn expanded(&self, l: usize, x: usize, y: usize) -> Option<[f32; 3]> {
         let g = &self.g[l];
         let (nw, nh) = self.chart[l + 1];
-        let (bx, by) = (self.ox >> (l + 1), self.oy >> (l + 1));
         let mut s = [0f32; 4];
-        let (jx, jy) = (x / 2, y / 2);
-        if jx > bx && jx + 2 < (bx + g.w).min(nw) && jy > by && jy + 2 < (by + g.h).min(nh) {
-            // Away from the chart's and the part's borders the taps are the kernel's, by
-            // parity alone: three per axis from the one before, the third of weight 0 for
-            // odd coordinates. The same sums, in the same order, as the general taps (adding
-            // zeros changes no bit).
-            let k2 = self.k.map(|v| 2.0 * v);
-            let taps = |v: usize, j: usize| {
-                if v.is_multiple_of(2) {
-                    ([k2[0], k2[2], k2[4]], j - 1)
-                } else {
-                    ([k2[1], k2[3], 0.0], j)
+        for_taps_in(
+            up_taps(x, nw, &self.k),
+            up_taps(y, nh, &self.k),
+            (self.ox >> (l + 1), self.oy >> (l + 1)),
+            (g.w, g.h),
+            |i, wt| {
+                for (sk, v) in s.iter_mut().zip(&g.d[4 * i..4 * i + 4]) {
+                    *sk += wt * v;
                 }
-            };
-            let ((wx, x0), (wy, y0)) = (taps(x, jx), taps(y, jy));
-            for (b, wyb) in wy.iter().enumerate() {
-                let row = (y0 - by + b) * g.w + x0 - bx;
-                for (a, wxa) in wx.iter().enumerate() {
-                    let wt = wxa * wyb;
-                    let i = 4 * (row + a);
-                    for (sk, v) in s.iter_mut().zip(&g.d[i..i + 4]) {
-                        *sk += wt * v;
-                    }
-                }
-            }
-        } else {
-            for_taps_in(
-                up_taps(x, nw, &self.k),
-                up_taps(y, nh, &self.k),
-                (bx, by),
-                (g.w, g.h),
-                |i, wt| {
-                    for (sk, v) in s.iter_mut().zip(&g.d[4 * i..4 * i + 4]) {
-                        *sk += wt * v;
-                    }
-                },
-            );
-        }
+            },
+        );
         (s[3] > EPS).then(|| [s[0] / s[3], s[1] / s[3], s[2] / s[3]])
     }
 
