@@ -610,21 +610,18 @@ impl Layer {
             let gi = y * cw + x;
             if winner_mode {
                 let mean = &mut acc.finest[3 * gi..3 * gi + 3];
-                let Some(sum) = acc.finest_w.get_mut(gi) else {
-                    // The weights are gone once the photographs are in: what comes after
-                    // (the complement) enters only texels no photograph did.
-                    for (m, b) in mean.iter_mut().zip(band) {
-                        *m = f16::from_f32(b);
-                    }
-                    continue;
-                };
                 if mw == f32::INFINITY {
                     for (m, b) in mean.iter_mut().zip(band) {
                         *m = f16::from_f32(b);
                     }
-                    *sum = f16::ONE;
+                    // The weights may be gone already (`multiband` frees them after the
+                    // photographs, before the complement).
+                    if let Some(sum) = acc.finest_w.get_mut(gi) {
+                        *sum = f16::ONE;
+                    }
                 } else if mw > 0.0 {
                     // Weights stay within half precision's range (`fine_weight`).
+                    let sum = &mut acc.finest_w[gi];
                     let total = sum.to_f32() + mw;
                     let share = mw / total;
                     for (m, b) in mean.iter_mut().zip(band) {
@@ -1241,7 +1238,7 @@ fn add_photo(
         let full = &face_full[f as usize];
         if ch.levels > 0 && !full.is_empty() && full.binary_search(&photo).is_err() {
             // Coarse: one sample per 2 x 2 texels, for the coarser bands; these texels count
-            // as seen (never as this photograph's winners: their finest band is not known).
+            // as seen (never in the finest band: theirs is not known).
             prep.sample_face(ph, f, 0, n, Some((ch.x0, ch.y0)), |x, y, c, wt| {
                 let (x, y) = (x - ch.x0, y - ch.y0);
                 for (bx, by) in [(x, y), (x + 1, y), (x, y + 1), (x + 1, y + 1)] {
@@ -1410,7 +1407,9 @@ fn add_complement(
     let fine = (oy..ey)
         .step_by(ROWS)
         .flat_map(|y0| block(y0, true))
-        .map(|(x, y, c)| (x, y, c, 1.0));
+        // With best-view masks it replaces the finest band: it enters only texels no
+        // photograph did.
+        .map(|(x, y, c)| (x, y, c, if winner_mode { f32::INFINITY } else { 1.0 }));
     layer.accumulate(acc, winner_mode, fine);
 }
 

@@ -163,6 +163,22 @@ fn texture_to(scene: &Path, opts: &TextureOptions, out: &Path) -> scantex::pipel
     r.report
 }
 
+/// The textured mesh in `out` against `scene`'s held-out views (gain-fitted), mean over
+/// them.
+fn held_out(scene: &Path, out: &Path) -> scantex::eval::ImageScore {
+    scantex::eval::evaluate_scene(
+        &out.join("model.obj"),
+        &SceneSpec {
+            dir: Some(scene.join("heldout")),
+            ..Default::default()
+        },
+        &scantex::eval::EvalOptions { gain_fit: true },
+    )
+    .unwrap()
+    .mean
+    .unwrap()
+}
+
 #[test]
 fn no_texel_takes_colour_from_an_occluder() {
     let dir = tempfile::tempdir().unwrap();
@@ -253,16 +269,7 @@ fn default_beats_paper_on_held_out_views() {
         opts.atlas.pack.size = 2048;
         let out = dir.path().join(name);
         texture_to(&scene, &opts, &out);
-        let rep = scantex::eval::evaluate_scene(
-            &out.join("model.obj"),
-            &SceneSpec {
-                dir: Some(scene.join("heldout")),
-                ..Default::default()
-            },
-            &scantex::eval::EvalOptions { gain_fit: true },
-        )
-        .unwrap();
-        psnr.push(rep.mean.unwrap().psnr);
+        psnr.push(held_out(&scene, &out).psnr);
     }
     assert!(psnr[1] > psnr[0] + 0.3, "paper {psnr:?} default");
 }
@@ -321,17 +328,7 @@ fn blending_the_finest_band_closes_the_best_view_steps() {
         opts.merge.fine_exponent = exponent;
         let out = dir.path().join(format!("e{exponent}"));
         let seams = texture_to(&scene, &opts, &out).seams;
-        let rep = scantex::eval::evaluate_scene(
-            &out.join("model.obj"),
-            &SceneSpec {
-                dir: Some(scene.join("heldout")),
-                ..Default::default()
-            },
-            &scantex::eval::EvalOptions { gain_fit: true },
-        )
-        .unwrap()
-        .mean
-        .unwrap();
+        let rep = held_out(&scene, &out);
         runs.push((seams.view_boundary_ratio, rep.psnr, rep.one_minus_ncc));
     }
     let ((alone, p_alone, n_alone), (blend, p_blend, n_blend)) = (runs[0], runs[1]);
