@@ -137,9 +137,9 @@ impl Default for MergeOptions {
 impl MergeOptions {
     /// Checks the ranges; the error names the option.
     pub fn validate(&self) -> Result<()> {
-        if self.levels > 12 {
+        if !(1..=12).contains(&self.levels) {
             return Err(Error::Invalid(format!(
-                "merge levels = {} must lie in 0..=12",
+                "merge levels = {} must lie in 1..=12",
                 self.levels
             )));
         }

@@ -166,6 +166,11 @@ pub struct TextureReport {
     pub photos: usize,
     /// Registered images left out because their file is absent (`--skip-missing`).
     pub photos_skipped: Vec<String>,
+    /// Registered images left out because their photograph is bad (`--skip-bad-images`).
+    pub photos_bad: Vec<crate::scene::BadPhoto>,
+    /// Everything the run warned about on standard error (photographs that contribute
+    /// nothing, photographs left out).
+    pub warnings: Vec<String>,
     /// The view direction the atlas weighted by, if any.
     pub view_dir: Option<[f64; 3]>,
     /// The atlas stage's report.
@@ -285,6 +290,16 @@ pub fn texture(
             r.outside, r.facing, r.silhouette, r.occluded, r.mask, r.background
         )));
     }
+    let mut warnings = Vec::new();
+    for b in binding.per_photo.iter().filter(|b| b.vertices == 0) {
+        let w = format!(
+            "photograph {} sees no vertex of the mesh and contributes nothing (check its pose \
+             and that it shows the object)",
+            b.name
+        );
+        progress.warn(&w);
+        warnings.push(w);
+    }
     progress.start("gains", 1);
     let binding = photometric::normalise(binding, &normals, &opts.photometric);
     progress.finish();
@@ -337,6 +352,8 @@ pub fn texture(
         faces: m.num_faces(),
         photos: photos.len(),
         photos_skipped: Vec::new(),
+        photos_bad: Vec::new(),
+        warnings,
         view_dir: view_dir.map(|v| [v.x, v.y, v.z]),
         atlas: atlas_report,
         vertices_bound: binding.bound_vertices(),
@@ -375,7 +392,28 @@ pub fn write_outputs(
     format: TextureFormat,
     debug: Option<&Path>,
 ) -> Result<()> {
-    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let staged = begin_outputs(dir, debug)?;
+    write_staged(staged, dir, result, format, debug)
+}
+
+/// Prepares the output directories of `scantex texture` before any work: creates them, checks
+/// that they can be written and that no other run is writing them, and removes what a killed
+/// run left (see [`io::staging`]).
+pub fn begin_outputs(dir: &Path, debug: Option<&Path>) -> Result<Staged> {
+    let mut dirs = vec![dir];
+    dirs.extend(debug);
+    Staged::begin("texture", &dirs)
+}
+
+/// [`write_outputs`] into staging prepared by [`begin_outputs`]. `report.json` is moved into
+/// place last: once it is new, so is everything else.
+fn write_staged(
+    mut staged: Staged,
+    dir: &Path,
+    result: &Textured,
+    format: TextureFormat,
+    debug: Option<&Path>,
+) -> Result<()> {
     let img = &result.resampled.color;
     let png8 = to_png8(img)?;
     let main = match format {
@@ -385,7 +423,6 @@ pub fn write_outputs(
         }
         TextureFormat::Exr => io::image::encode_exr(img)?,
     };
-    let mut staged = Staged::new();
     io::obj::write(
         &mut staged,
         &dir.join("model.obj"),
@@ -398,11 +435,7 @@ pub fn write_outputs(
         &result.mesh,
         Some(&png8),
     )?;
-    let json = serde_json::to_vec_pretty(&result.report)
-        .map_err(|e| Error::Invalid(format!("cannot serialise the report: {e}")))?;
-    staged.write(&dir.join("report.json"), &json)?;
     if let Some(d) = debug {
-        std::fs::create_dir_all(d).map_err(|e| Error::io(d, e))?;
         let r = &result.resampled;
         let size = img.width();
         for (name, pic) in [
@@ -417,6 +450,9 @@ pub fn write_outputs(
             staged.write(&d.join(name), &enc.bytes)?;
         }
     }
+    let json = serde_json::to_vec_pretty(&result.report)
+        .map_err(|e| Error::Invalid(format!("cannot serialise the report: {e}")))?;
+    staged.write(&dir.join("report.json"), &json)?;
     staged.commit()
 }
 
@@ -430,6 +466,7 @@ pub fn texture_scene(
     progress: &dyn Progress,
 ) -> Result<Textured> {
     opts.validate()?;
+    let staged = begin_outputs(out, debug)?;
     let scene = crate::scene::Scene::load(spec)?;
     let Some((mesh, _)) = &scene.mesh else {
         return Err(Error::Invalid(
@@ -443,9 +480,18 @@ pub fn texture_scene(
                 .into(),
         ));
     }
+    let mut warnings = Vec::new();
+    for b in &scene.bad {
+        let w = format!("left out photograph {}: {}", b.name, b.reason);
+        progress.warn(&w);
+        warnings.push(w);
+    }
     scene.check_photos()?;
     let mut result = texture(mesh, &scene.photos, opts, progress)?;
     result.report.photos_skipped = scene.skipped.clone();
-    write_outputs(out, &result, opts.format, debug)?;
+    result.report.photos_bad = scene.bad.clone();
+    warnings.append(&mut result.report.warnings);
+    result.report.warnings = warnings;
+    write_staged(staged, out, &result, opts.format, debug)?;
     Ok(result)
 }

@@ -12,6 +12,11 @@ pub trait Progress: Sync {
     fn advance(&self, n: u64);
     /// The current stage is done.
     fn finish(&self);
+    /// Something the user should know that does not stop the run; printed on standard error
+    /// by default, whatever else is shown.
+    fn warn(&self, msg: &str) {
+        eprintln!("scantex: warning: {msg}");
+    }
 }
 
 /// Reports nothing.
@@ -68,6 +73,14 @@ impl Progress for Bars {
             if let Some((bar, _, _)) = c.take() {
                 bar.finish_and_clear();
             }
+        }
+    }
+
+    fn warn(&self, msg: &str) {
+        let line = format!("scantex: warning: {msg}");
+        match self.current.lock().ok().as_ref().and_then(|c| c.as_ref()) {
+            Some((bar, _, _)) => bar.suspend(|| eprintln!("{line}")),
+            None => eprintln!("{line}"),
         }
     }
 }

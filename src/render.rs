@@ -399,7 +399,8 @@ pub fn render_scene(
     }
     let ray_mesh = RayMesh::new(&mesh);
     let masks = out.join("masks");
-    std::fs::create_dir_all(&masks).map_err(|e| Error::io(&masks, e))?;
+    // All views appear at the end or none does; the directories are checked before any work.
+    let mut staged = crate::io::Staged::begin("render", &[out, &masks])?;
     for photo in &scene.photos {
         let mut o = *opts;
         if let Some(l) = per_image.and_then(|m| m.get(&photo.name)) {
@@ -407,17 +408,13 @@ pub fn render_scene(
         }
         let r = render(&ray_mesh, texture.as_ref(), &photo.view, &o);
         let stem = Path::new(&photo.name).with_extension("png");
-        let mut staged = crate::io::Staged::new();
         for (path, img) in [
             (out.join(&stem), DynamicImage::ImageRgb8(to_rgb8(&r.color))),
             (masks.join(&stem), DynamicImage::ImageLuma8(r.coverage)),
         ] {
-            if let Some(parent) = path.parent() {
-                std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
-            }
             staged.write(&path, &crate::io::image::encode_png(&img)?.bytes)?;
         }
-        staged.commit()?;
     }
+    staged.commit()?;
     Ok(scene.photos.len())
 }

@@ -29,6 +29,9 @@ pub struct SceneSpec {
     /// Leave out registered images whose photograph file is absent (held out, or deleted as
     /// bad) instead of failing on them. Default: false.
     pub skip_missing: bool,
+    /// Leave out registered images whose photograph is unreadable, truncated, corrupt or of
+    /// another size than its camera, with a warning, instead of failing on them. Default: false.
+    pub skip_bad: bool,
 }
 
 /// The resolved locations of a scene's parts; `None` where the scene has no such part.
@@ -174,7 +177,8 @@ impl Photo {
         if !self.path.is_file() {
             return PhotoStatus::Missing;
         }
-        match io::image::dimensions(&self.path) {
+        match io::image::check_complete(&self.path).and_then(|()| io::image::dimensions(&self.path))
+        {
             Err(e) => PhotoStatus::Unreadable(e.to_string()),
             Ok(found) => {
                 let expected = (self.view.camera.width, self.view.camera.height);
@@ -201,7 +205,10 @@ impl Photo {
                     ),
                 ),
             )),
-            PhotoStatus::Unreadable(msg) => Err(Error::Invalid(msg)),
+            PhotoStatus::Unreadable(msg) => Err(Error::Invalid(format!(
+                "image {}: {msg} (--skip-bad-images leaves such photographs out)",
+                self.image_id
+            ))),
             PhotoStatus::WrongSize { found, expected } => Err(Error::at_element(
                 &self.path,
                 format!("image {}", self.image_id),
@@ -275,6 +282,17 @@ pub struct Scene {
     /// Names of registered images left out because their file is absent
     /// ([`SceneSpec::skip_missing`]).
     pub skipped: Vec<String>,
+    /// Registered images left out because their photograph is bad ([`SceneSpec::skip_bad`]).
+    pub bad: Vec<BadPhoto>,
+}
+
+/// A photograph left out by [`SceneSpec::skip_bad`], and why.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct BadPhoto {
+    /// Name in the COLMAP model.
+    pub name: String,
+    /// What is wrong with it, naming the file.
+    pub reason: String,
 }
 
 impl Scene {
@@ -293,14 +311,31 @@ impl Scene {
             None => Vec::new(),
         };
         let mut skipped = Vec::new();
-        if spec.skip_missing {
-            photos.retain(|p| {
-                let present = p.status() != PhotoStatus::Missing;
-                if !present {
+        let mut bad = Vec::new();
+        if spec.skip_missing || spec.skip_bad {
+            use rayon::prelude::*;
+            let verdicts: Vec<Result<()>> = photos
+                .par_iter()
+                .map(|p| match p.status() {
+                    PhotoStatus::Missing if !spec.skip_missing => Ok(()),
+                    PhotoStatus::Ok | PhotoStatus::Missing => Ok(()),
+                    _ => p.check(),
+                })
+                .collect();
+            let mut keep = Vec::with_capacity(photos.len());
+            for (p, verdict) in photos.into_iter().zip(verdicts) {
+                if spec.skip_missing && !p.path.is_file() {
                     skipped.push(p.name.clone());
+                } else if let (true, Err(e)) = (spec.skip_bad, &verdict) {
+                    bad.push(BadPhoto {
+                        name: p.name.clone(),
+                        reason: e.to_string(),
+                    });
+                } else {
+                    keep.push(p);
                 }
-                present
-            });
+            }
+            photos = keep;
         }
         Ok(Scene {
             paths,
@@ -308,6 +343,7 @@ impl Scene {
             reconstruction,
             photos,
             skipped,
+            bad,
         })
     }
 

@@ -296,37 +296,39 @@ fn corset_gltf_and_obj_describe_the_same_scan() {
     );
 }
 
-/// Runs the Khronos glTF validator (npm `gltf-validator`) on `glb`; installs it under
-/// `target/npm` if missing. Returns `None` (skip) when npm is unavailable outside CI.
-fn khronos_validate(glb: &Path) -> Option<serde_json::Value> {
+/// Runs the Khronos glTF validator (npm `gltf-validator`, pinned) on `glb`; installs it under
+/// `target/npm` on first use, as the README says. npm's registry is reachable on every machine
+/// of this project, so a failed install is a failed test, with npm's own words: the check never
+/// passes by skipping.
+fn khronos_validate(glb: &Path) -> serde_json::Value {
     let root = common::root();
     let prefix = root.join("target").join("npm");
-    let ci = std::env::var("CI").is_ok_and(|v| v == "true");
     if !prefix.join("node_modules/gltf-validator").is_dir() {
-        let ok = std::process::Command::new("npm")
+        let out = std::process::Command::new("npm")
             .args(["install", "--no-audit", "--no-fund", "--prefix"])
             .arg(&prefix)
             .arg("gltf-validator@2.0.0-dev.3.10")
-            .status()
-            .is_ok_and(|s| s.success());
-        if !ok {
-            assert!(!ci, "npm install gltf-validator failed under CI");
-            eprintln!("skipping: cannot install gltf-validator with npm");
-            return None;
-        }
+            .output()
+            .unwrap_or_else(|e| panic!("cannot run npm to install gltf-validator: {e}"));
+        assert!(
+            out.status.success(),
+            "npm install gltf-validator failed: {}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
     }
     let out = std::process::Command::new("node")
         .arg(root.join("tests/gltf_validate.js"))
         .arg(glb)
         .env("NODE_PATH", prefix.join("node_modules"))
         .output()
-        .expect("node runs");
+        .unwrap_or_else(|e| panic!("cannot run node for the glTF validator: {e}"));
     assert!(
         out.status.success(),
         "validator failed: {}",
         String::from_utf8_lossy(&out.stderr)
     );
-    Some(serde_json::from_slice(&out.stdout).unwrap())
+    serde_json::from_slice(&out.stdout).unwrap()
 }
 
 #[test]
@@ -347,9 +349,7 @@ fn glb_passes_the_khronos_validator() {
     for (name, m, tex) in meshes {
         let path = dir.path().join(format!("{name}.glb"));
         io::write_mesh(&path, &m, tex.as_ref()).unwrap();
-        let Some(report) = khronos_validate(&path) else {
-            return;
-        };
+        let report = khronos_validate(&path);
         assert_eq!(report["errors"], 0, "{name}: {report}");
         assert_eq!(report["warnings"], 0, "{name}: {report}");
     }

@@ -127,6 +127,29 @@ pub fn read_format(dir: &Path, format: Format) -> Result<Reconstruction> {
     Ok(rec)
 }
 
+/// Parses a text model from the three files' contents, with every check [`read`] makes;
+/// `dir` is only used to name the files in errors.
+pub fn parse_text(dir: &Path, cameras: &str, images: &str, points: &str) -> Result<Reconstruction> {
+    let (imgs, pts) = (dir.join("images.txt"), dir.join("points3D.txt"));
+    let rec = Reconstruction {
+        cameras: parse_cameras_text(&dir.join("cameras.txt"), cameras)?,
+        images: parse_images_text(&imgs, images)?,
+        points3d: parse_points_text(&pts, points)?,
+    };
+    rec.check_references(&imgs, &pts)?;
+    Ok(rec)
+}
+
+/// "images.bin and points3D.bin", for messages about the two files disagreeing.
+fn both(images: &Path, points: &Path) -> String {
+    let name = |p: &Path| {
+        p.file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    };
+    format!("{} and {}", name(images), name(points))
+}
+
 impl Reconstruction {
     /// Checks that every image names an existing camera and every track element an existing
     /// image and keypoint.
@@ -141,17 +164,88 @@ impl Reconstruction {
             }
         }
         for (pid, p) in &self.points3d {
+            if p.track.is_empty() {
+                return Err(Error::at_element(
+                    points_path,
+                    format!("point3D {pid}"),
+                    "track is empty: truncated or corrupt file",
+                ));
+            }
             for &(iid, idx) in &p.track {
-                let ok = self
+                let back = self
                     .images
                     .get(&iid)
-                    .is_some_and(|i| (idx as usize) < i.points2d.len());
-                if !ok {
+                    .and_then(|i| i.points2d.get(idx as usize))
+                    .map(|k| k.point3d_id);
+                match back {
+                    None => {
+                        return Err(Error::at_element(
+                            points_path,
+                            format!("point3D {pid}"),
+                            format!(
+                                "track references image {iid} keypoint {idx}, which does not exist"
+                            ),
+                        ))
+                    }
+                    Some(Some(b)) if b == *pid => {}
+                    Some(other) => {
+                        return Err(Error::at_element(
+                            points_path,
+                            format!("point3D {pid}"),
+                            format!(
+                                "track holds image {iid} keypoint {idx}, but that keypoint \
+                                 observes {}: {} disagree (truncated or corrupt)",
+                                other.map_or("no point".to_string(), |b| format!("point3D {b}")),
+                                both(images_path, points_path)
+                            ),
+                        ))
+                    }
+                }
+            }
+        }
+        // The other way: what images say they observe must exist and list them back. The
+        // undistorter may omit points3D; then there is nothing to check against.
+        if self.points3d.is_empty() {
+            return Ok(());
+        }
+        for img in self.images.values() {
+            let cam = &self.cameras[&img.camera_id];
+            let (w, h) = (cam.width as f64, cam.height as f64);
+            // Real keypoints stray a little outside the image (undistorted or rescaled
+            // models: 816 px in an 800 px wide image of statue_of_liberty); corrupt bytes in a
+            // double land orders of magnitude away. The slack is one image size.
+            let slack = w.max(h);
+            for (k, p2) in img.points2d.iter().enumerate() {
+                let [x, y] = p2.xy;
+                if !(-slack..=w + slack).contains(&x) || !(-slack..=h + slack).contains(&y) {
                     return Err(Error::at_element(
-                        points_path,
-                        format!("point3D {pid}"),
+                        images_path,
+                        format!("image {} ({}) keypoint {k}", img.id, img.name),
                         format!(
-                            "track references image {iid} keypoint {idx}, which does not exist"
+                            "position ({x}, {y}) lies far outside the {}x{} image of camera {}: \
+                             corrupt file",
+                            cam.width, cam.height, cam.id
+                        ),
+                    ));
+                }
+                let Some(pid) = p2.point3d_id else { continue };
+                let listed = self
+                    .points3d
+                    .get(&pid)
+                    .is_some_and(|p| p.track.contains(&(img.id, k as u32)));
+                if !listed {
+                    return Err(Error::at_element(
+                        images_path,
+                        format!("image {} ({}) keypoint {k}", img.id, img.name),
+                        format!(
+                            "observes point3D {pid}, which {}: {} disagree (truncated or \
+                             corrupt)",
+                            if self.points3d.contains_key(&pid) {
+                                "does not list it in its track"
+                            } else {
+                                "does not exist"
+                            },
+                            both(images_path, points_path)
                         ),
                     ));
                 }
@@ -186,17 +280,35 @@ impl Reconstruction {
     }
 }
 
+/// How far a stored quaternion's norm may be from 1: COLMAP writes unit quaternions to full
+/// precision, and six printed decimals stay within 1e-5. Anything farther is not a rotation
+/// but a corrupt or hand-broken file, which would otherwise be normalised into a wrong pose.
+const QUATERNION_NORM_TOLERANCE: f64 = 1e-3;
+
+fn check_quaternion(q: [f64; 4], image: u32) -> std::result::Result<(), String> {
+    let norm = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+    if (norm - 1.0).abs() > QUATERNION_NORM_TOLERANCE {
+        return Err(format!(
+            "image {image}: quaternion {q:?} has norm {norm:.6}, not 1: not a rotation \
+             (corrupt or wrongly written pose)"
+        ));
+    }
+    Ok(())
+}
+
 // ---------------------------------------------------------------------------------------------
 // Text
 
-/// Non-comment, non-empty lines with their 1-based numbers.
-fn text_lines(path: &Path) -> Result<Vec<(usize, String)>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    Ok(text
-        .lines()
+fn read_text(path: &Path) -> Result<String> {
+    std::fs::read_to_string(path).map_err(|e| Error::io(path, e))
+}
+
+/// Trimmed lines with their 1-based numbers.
+fn text_lines(text: &str) -> Vec<(usize, String)> {
+    text.lines()
         .enumerate()
         .map(|(i, l)| (i + 1, l.trim().to_string()))
-        .collect())
+        .collect()
 }
 
 fn is_data(line: &str) -> bool {
@@ -229,8 +341,13 @@ fn need<'a>(path: &Path, line: usize, toks: &'a [&'a str], n: usize, what: &str)
 }
 
 fn read_cameras_text(path: &Path) -> Result<BTreeMap<u32, Camera>> {
+    parse_cameras_text(path, &read_text(path)?)
+}
+
+/// Parses the text of a `cameras.txt`; `path` is only used in errors.
+pub fn parse_cameras_text(path: &Path, text: &str) -> Result<BTreeMap<u32, Camera>> {
     let mut out = BTreeMap::new();
-    for (ln, line) in text_lines(path)? {
+    for (ln, line) in text_lines(text) {
         if !is_data(&line) {
             continue;
         }
@@ -259,7 +376,12 @@ fn read_cameras_text(path: &Path) -> Result<BTreeMap<u32, Camera>> {
 }
 
 fn read_images_text(path: &Path) -> Result<BTreeMap<u32, Image>> {
-    let lines = text_lines(path)?;
+    parse_images_text(path, &read_text(path)?)
+}
+
+/// Parses the text of a `images.txt`; `path` is only used in errors.
+pub fn parse_images_text(path: &Path, text: &str) -> Result<BTreeMap<u32, Image>> {
+    let lines = text_lines(text);
     let mut out = BTreeMap::new();
     let mut i = 0;
     while i < lines.len() {
@@ -276,6 +398,7 @@ fn read_images_text(path: &Path) -> Result<BTreeMap<u32, Image>> {
         for (k, v) in q.iter_mut().enumerate() {
             *v = parse_finite(path, ln, t[1 + k], "quaternion")?;
         }
+        check_quaternion(q, id).map_err(|m| Error::at_line(path, ln, m))?;
         let mut tr = [0.0; 3];
         for (k, v) in tr.iter_mut().enumerate() {
             *v = parse_finite(path, ln, t[5 + k], "translation")?;
@@ -333,8 +456,13 @@ fn read_images_text(path: &Path) -> Result<BTreeMap<u32, Image>> {
 }
 
 fn read_points_text(path: &Path) -> Result<BTreeMap<u64, Point3D>> {
+    parse_points_text(path, &read_text(path)?)
+}
+
+/// Parses the text of a `points3D.txt`; `path` is only used in errors.
+pub fn parse_points_text(path: &Path, text: &str) -> Result<BTreeMap<u64, Point3D>> {
     let mut out = BTreeMap::new();
-    for (ln, line) in text_lines(path)? {
+    for (ln, line) in text_lines(text) {
         if !is_data(&line) {
             continue;
         }
@@ -349,7 +477,7 @@ fn read_points_text(path: &Path) -> Result<BTreeMap<u64, Point3D>> {
         for (k, v) in rgb.iter_mut().enumerate() {
             *v = parse_num(path, ln, t[4 + k], "RGB")?;
         }
-        let error: f64 = parse_num(path, ln, t[7], "ERROR")?;
+        let error = parse_finite(path, ln, t[7], "ERROR")?;
         let rest = &t[8..];
         if !rest.len().is_multiple_of(2) {
             return Err(Error::at_line(
@@ -586,9 +714,11 @@ pub fn parse_images_binary(path: &Path, data: &[u8]) -> Result<BTreeMap<u32, Ima
         let at = c.pos;
         let id = c.u32("IMAGE_ID")?;
         let mut q = [0.0; 4];
+        let q_at = c.pos;
         for v in &mut q {
             *v = c.finite("quaternion")?;
         }
+        check_quaternion(q, id).map_err(|m| c.err_at(q_at, m))?;
         let mut t = [0.0; 3];
         for v in &mut t {
             *v = c.finite("translation")?;
@@ -655,7 +785,7 @@ pub fn parse_points_binary(path: &Path, data: &[u8]) -> Result<BTreeMap<u64, Poi
             *v = c.finite("XYZ")?;
         }
         let rgb = [c.u8("R")?, c.u8("G")?, c.u8("B")?];
-        let error = c.f64("ERROR")?;
+        let error = c.finite("ERROR")?;
         let nt = c.count(8, "track length")?;
         let mut track = Vec::with_capacity(nt);
         for _ in 0..nt {

@@ -14,7 +14,8 @@ use std::path::Path;
 /// on byte ranges that run past a buffer in a corrupt file; such a panic is turned into an
 /// error naming the file, so bad input never takes the process down.
 pub fn read(path: &Path) -> Result<(Mesh, LoadReport)> {
-    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| read_inner(path))) {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| parse(path, &bytes))) {
         Ok(r) => r,
         Err(_) => Err(Error::parse(
             path,
@@ -24,14 +25,17 @@ pub fn read(path: &Path) -> Result<(Mesh, LoadReport)> {
     }
 }
 
-fn read_inner(path: &Path) -> Result<(Mesh, LoadReport)> {
-    let g = gltf::Gltf::open(path).map_err(|e| match e {
+/// Parses the bytes of a `.gltf` or `.glb` file; external buffers and textures are looked up
+/// beside `path`, which also names the file in errors. Unlike [`read`], a panic inside the
+/// `gltf` crate is not caught here (so fuzzing sees it).
+pub fn parse(path: &Path, bytes: &[u8]) -> Result<(Mesh, LoadReport)> {
+    let g = gltf::Gltf::from_slice(bytes).map_err(|e| match e {
         gltf::Error::Io(io) => Error::io(path, io),
         other => Error::parse(path, crate::error::Location::File, other.to_string()),
     })?;
     let base = path.parent().unwrap_or(Path::new("."));
     let buffers = gltf::import_buffers(&g.document, Some(base), g.blob.clone())
-        .map_err(|e| Error::at_element(path, "buffers", e.to_string()))?;
+        .map_err(|e| buffer_error(path, base, &g.document, e))?;
     let mut out = Builder::default();
     let roots: Vec<gltf::Node> = match g
         .document
@@ -465,4 +469,40 @@ pub fn write_glb(
 
 fn f32_bytes<'a>(v: impl Iterator<Item = &'a f32>) -> Vec<u8> {
     v.flat_map(|f| f.to_le_bytes()).collect()
+}
+
+/// A buffer that could not be loaded, named by its index and, for an external file, its path:
+/// the crate's own error gives only the operating system's words.
+fn buffer_error(path: &Path, base: &Path, doc: &gltf::Document, e: gltf::Error) -> Error {
+    for b in doc.buffers() {
+        if let gltf::buffer::Source::Uri(uri) = b.source() {
+            if uri.starts_with("data:") {
+                continue;
+            }
+            let file = base.join(uri);
+            match std::fs::metadata(&file) {
+                Err(io) => {
+                    return Error::at_element(
+                        path,
+                        format!("buffer {} ({uri})", b.index()),
+                        format!("cannot read {}: {io}", file.display()),
+                    )
+                }
+                Ok(m) if (m.len() as usize) < b.length() => {
+                    return Error::at_element(
+                        path,
+                        format!("buffer {} ({uri})", b.index()),
+                        format!(
+                            "{} holds {} bytes but the buffer declares {}: truncated",
+                            file.display(),
+                            m.len(),
+                            b.length()
+                        ),
+                    )
+                }
+                Ok(_) => {}
+            }
+        }
+    }
+    Error::at_element(path, "buffers", e.to_string())
 }

@@ -15,12 +15,127 @@ fn open(path: &Path) -> Result<ImageReader<std::io::BufReader<std::fs::File>>> {
 
 fn decode_error(path: &Path, e: image::ImageError) -> Error {
     match e {
+        image::ImageError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+            Error::parse(
+                path,
+                Location::File,
+                "truncated image: the file ends before its pixel data does",
+            )
+        }
         image::ImageError::IoError(io) => Error::io(path, io),
         other => Error::parse(
             path,
             Location::File,
             format!("cannot decode image: {other}"),
         ),
+    }
+}
+
+/// Checks that an image file is whole: decoders fill the missing rows of a truncated JPEG with
+/// grey and report success, so a JPEG must carry its end-of-image marker after its first scan.
+/// Cheap: the tail of the file is read, and the whole file only when something follows the
+/// marker (an appended video, say). Other formats' decoders report truncation themselves.
+pub fn check_complete(path: &Path) -> Result<()> {
+    use std::io::{Read, Seek, SeekFrom};
+    let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut head = [0u8; 2];
+    if f.read_exact(&mut head).is_err() || head != [0xFF, 0xD8] {
+        return Ok(());
+    }
+    let len = f.metadata().map_err(|e| Error::io(path, e))?.len();
+    let tail_len = len.min(4096);
+    f.seek(SeekFrom::Start(len - tail_len))
+        .map_err(|e| Error::io(path, e))?;
+    let mut tail = Vec::with_capacity(tail_len as usize);
+    f.read_to_end(&mut tail).map_err(|e| Error::io(path, e))?;
+    // Some writers pad after the marker.
+    let end = tail
+        .iter()
+        .rposition(|&b| !matches!(b, 0 | b'\n' | b'\r' | b' '))
+        .map_or(0, |i| i + 1);
+    if tail[..end].ends_with(&[0xFF, 0xD9]) {
+        return Ok(());
+    }
+    let data = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    check_complete_bytes(path, &data)
+}
+
+/// [`check_complete`] on a file's bytes; `path` is only used in errors.
+pub fn check_complete_bytes(path: &Path, data: &[u8]) -> Result<()> {
+    if !data.starts_with(&[0xFF, 0xD8]) {
+        return Ok(());
+    }
+    match jpeg_eoi_after_scan(data) {
+        Ok(()) => Ok(()),
+        Err(at) => Err(Error::parse(
+            path,
+            Location::Byte(at as u64),
+            format!(
+                "truncated or corrupt JPEG: no end-of-image marker after the image data \
+                 ({} bytes)",
+                data.len()
+            ),
+        )),
+    }
+}
+
+/// Decodes an image file's bytes as [`read`] does (completeness checked first), with at most
+/// `max_alloc` bytes allocated by the decoder; `path` is only used in errors.
+pub fn decode_checked(path: &Path, data: &[u8], max_alloc: u64) -> Result<DynamicImage> {
+    check_complete_bytes(path, data)?;
+    let mut r = ImageReader::new(std::io::Cursor::new(data))
+        .with_guessed_format()
+        .map_err(|e| Error::io(path, e))?;
+    let mut limits = image::Limits::default();
+    limits.max_alloc = Some(max_alloc);
+    r.limits(limits);
+    r.decode().map_err(|e| decode_error(path, e))
+}
+
+/// A mask from an image: white (above one half of full scale, any channel's mean) = true.
+pub fn mask_of(img: &DynamicImage) -> (Vec<bool>, usize, usize) {
+    let img = img.to_luma32f();
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    (img.into_raw().into_iter().map(|v| v > 0.5).collect(), w, h)
+}
+
+/// `Ok` if the JPEG in `data` has an end-of-image marker after its first scan; else the byte
+/// offset where the marker was expected. Marker segments before the scan are skipped by their
+/// lengths, so a thumbnail's own marker inside the EXIF block does not count.
+fn jpeg_eoi_after_scan(data: &[u8]) -> std::result::Result<(), usize> {
+    let mut i = 2;
+    loop {
+        // Fill bytes (0xFF) may precede a marker.
+        while i < data.len() && data[i] == 0xFF && data.get(i + 1) == Some(&0xFF) {
+            i += 1;
+        }
+        if i + 4 > data.len() || data[i] != 0xFF {
+            return Err(i.min(data.len()));
+        }
+        let marker = data[i + 1];
+        if marker == 0xD9 {
+            return Ok(());
+        }
+        if (0xD0..=0xD7).contains(&marker) || marker == 0x01 {
+            i += 2;
+            continue;
+        }
+        let seg = u16::from_be_bytes([data[i + 2], data[i + 3]]) as usize;
+        if seg < 2 {
+            return Err(i);
+        }
+        i += 2 + seg;
+        if marker == 0xDA {
+            // Entropy-coded data: 0xFF is always followed by 0x00 or a restart marker there, so
+            // the first 0xFF 0xD9 is the end of the image.
+            return match data[i.min(data.len())..]
+                .windows(2)
+                .position(|w| w == [0xFF, 0xD9])
+            {
+                Some(_) => Ok(()),
+                None => Err(data.len()),
+            };
+        }
     }
 }
 
@@ -41,6 +156,7 @@ fn limits() -> image::Limits {
 
 /// Decodes an image file of any supported format.
 pub fn read(path: &Path) -> Result<DynamicImage> {
+    check_complete(path)?;
     let mut r = open(path)?;
     r.limits(limits());
     r.decode().map_err(|e| decode_error(path, e))
@@ -152,6 +268,7 @@ impl PhotoPixels {
 /// after photograph passes the last one's buffer back ([`PhotoPixels::into_spare`]), which
 /// saves the page faults of fresh memory per photograph.
 pub fn read_photo(path: &Path, spare: Vec<u8>) -> Result<PhotoPixels> {
+    check_complete(path)?;
     let mut r = open(path)?;
     r.limits(limits());
     let decoder = r.into_decoder().map_err(|e| decode_error(path, e))?;
@@ -249,20 +366,48 @@ pub fn read_planar(path: &Path) -> Result<(crate::restore::Image, Depth)> {
 
 /// Reads a mask: white (above one half of full scale, any channel's mean) = true.
 pub fn read_mask(path: &Path) -> Result<(Vec<bool>, usize, usize)> {
-    let img = read(path)?.to_luma32f();
-    let (w, h) = (img.width() as usize, img.height() as usize);
-    Ok((img.into_raw().into_iter().map(|v| v > 0.5).collect(), w, h))
+    Ok(mask_of(&read(path)?))
 }
 
-/// Writes an image in the format its extension names (png, jpg/jpeg, exr), 16-bit PNG when
-/// `depth` is 16-bit, atomically.
-pub fn write_planar(path: &Path, img: &crate::restore::Image, depth: Depth) -> Result<()> {
-    use image::{ImageBuffer, Luma, Rgb};
+/// The lower-case extension of an image output, if it is one [`write_planar`] can write.
+pub fn planar_output_format(path: &Path) -> Result<String> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .map(|e| e.to_ascii_lowercase())
         .unwrap_or_default();
+    match ext.as_str() {
+        "png" | "jpg" | "jpeg" | "exr" => Ok(ext),
+        _ => Err(Error::parse(
+            path,
+            Location::File,
+            "output format must be .png, .jpg, .jpeg or .exr",
+        )),
+    }
+}
+
+/// Writes an image in the format its extension names (png, jpg/jpeg, exr), 16-bit PNG when
+/// `depth` is 16-bit, atomically.
+pub fn write_planar(path: &Path, img: &crate::restore::Image, depth: Depth) -> Result<()> {
+    let bytes = encode_planar(path, img, depth)?;
+    super::write_atomic(path, &bytes)
+}
+
+/// [`write_planar`] through staging prepared before the work.
+pub fn stage_planar(
+    mut staged: super::Staged,
+    path: &Path,
+    img: &crate::restore::Image,
+    depth: Depth,
+) -> Result<()> {
+    let bytes = encode_planar(path, img, depth)?;
+    staged.write(path, &bytes)?;
+    staged.commit()
+}
+
+fn encode_planar(path: &Path, img: &crate::restore::Image, depth: Depth) -> Result<Vec<u8>> {
+    use image::{ImageBuffer, Luma, Rgb};
+    let ext = planar_output_format(path)?;
     let (w, h) = (img.width as u32, img.height as u32);
     let q8 = |v: &f32| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
     let q16 = |v: &f32| (v.clamp(0.0, 1.0) * 65535.0).round() as u16;
@@ -311,5 +456,5 @@ pub fn write_planar(path: &Path, img: &crate::restore::Image, depth: Depth) -> R
     dynimg
         .write_to(&mut std::io::Cursor::new(&mut bytes), format)
         .map_err(|e| Error::parse(path, Location::File, format!("cannot encode: {e}")))?;
-    super::write_atomic(path, &bytes)
+    Ok(bytes)
 }

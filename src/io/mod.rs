@@ -1,15 +1,18 @@
 //! Reading and writing files: meshes (OBJ, PLY, glTF/GLB), images, and atomic output.
 //! This is the only module that opens files (besides the COLMAP format in `camera::colmap`,
-//! which uses [`write_atomic`]).
+//! which uses [`write_atomic`]). Every output goes through [`staging`].
 
 pub mod gltf;
 pub mod image;
 pub mod obj;
 pub mod ply;
+pub mod staging;
+
+pub use staging::{write_atomic, Staged};
 
 use crate::error::{Error, Result};
 use crate::mesh::{LoadReport, Mesh};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// Mesh file formats scantex reads and writes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -62,64 +65,6 @@ pub fn read_mesh(path: &Path) -> Result<(Mesh, LoadReport)> {
     let v = mesh.validate(path)?;
     report.degenerate_faces += v.degenerate_faces;
     Ok((mesh, report))
-}
-
-/// A temporary file next to `path`, renamed over it by [`Staged::commit`] and deleted if the
-/// value is dropped uncommitted. Keeps half-written outputs from ever carrying a final name.
-pub struct Staged {
-    files: Vec<(PathBuf, PathBuf)>,
-}
-
-impl Staged {
-    /// An empty group of staged files.
-    pub fn new() -> Self {
-        Staged { files: Vec::new() }
-    }
-
-    /// Writes `bytes` to a temporary name beside `path`; nothing appears at `path` until
-    /// [`Staged::commit`].
-    pub fn write(&mut self, path: &Path, bytes: &[u8]) -> Result<()> {
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        let tmp = path.with_file_name(format!(".{name}.{}.tmp", std::process::id()));
-        std::fs::write(&tmp, bytes).map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            Error::io(path, e)
-        })?;
-        self.files.push((tmp, path.to_path_buf()));
-        Ok(())
-    }
-
-    /// Renames every staged file to its final name.
-    pub fn commit(mut self) -> Result<()> {
-        for (tmp, dst) in std::mem::take(&mut self.files) {
-            std::fs::rename(&tmp, &dst).map_err(|e| Error::io(&dst, e))?;
-        }
-        Ok(())
-    }
-}
-
-impl Default for Staged {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
-impl Drop for Staged {
-    fn drop(&mut self) {
-        for (tmp, _) in &self.files {
-            let _ = std::fs::remove_file(tmp);
-        }
-    }
-}
-
-/// Writes `bytes` to `path` through a temporary file and a rename.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let mut s = Staged::new();
-    s.write(path, bytes)?;
-    s.commit()
 }
 
 /// Peak resident memory of this process so far, bytes (Linux `VmHWM`; `None` elsewhere).
@@ -206,18 +151,30 @@ impl EncodedTexture {
 /// Writes `mesh` in the format its extension names (OBJ writes `.mtl` and the texture beside
 /// it). All files appear together or not at all.
 pub fn write_mesh(path: &Path, mesh: &Mesh, texture: Option<&EncodedTexture>) -> Result<()> {
-    let mut staged = Staged::new();
-    match MeshFormat::from_path(path) {
-        Some(MeshFormat::Obj) => obj::write(&mut staged, path, mesh, texture)?,
-        Some(MeshFormat::Ply) => ply::write(&mut staged, path, mesh)?,
-        Some(MeshFormat::Glb) => gltf::write_glb(&mut staged, path, mesh, texture)?,
-        Some(MeshFormat::Gltf) | None => {
-            return Err(Error::at_element(
-                path,
-                "file name",
-                "mesh output must be .obj, .ply or .glb",
-            ))
-        }
-    }
+    let label = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "mesh".into());
+    let mut staged = Staged::new(&label);
+    stage_mesh(&mut staged, path, mesh, texture)?;
     staged.commit()
+}
+
+/// [`write_mesh`] into staging the caller commits with its other outputs.
+pub fn stage_mesh(
+    staged: &mut Staged,
+    path: &Path,
+    mesh: &Mesh,
+    texture: Option<&EncodedTexture>,
+) -> Result<()> {
+    match MeshFormat::from_path(path) {
+        Some(MeshFormat::Obj) => obj::write(staged, path, mesh, texture),
+        Some(MeshFormat::Ply) => ply::write(staged, path, mesh),
+        Some(MeshFormat::Glb) => gltf::write_glb(staged, path, mesh, texture),
+        Some(MeshFormat::Gltf) | None => Err(Error::at_element(
+            path,
+            "file name",
+            "mesh output must be .obj, .ply or .glb",
+        )),
+    }
 }

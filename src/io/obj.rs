@@ -56,10 +56,20 @@ pub fn parse(path: &Path, bytes: &[u8]) -> Result<(Mesh, LoadReport)> {
                 ));
             }
             if let Some(k) = v.iter().position(|x| !x.is_finite()) {
+                let names: &[&str] = match what {
+                    "vertex" => &["x", "y", "z", "r", "g", "b", "w"],
+                    "texture coordinate" => &["u", "v", "w"],
+                    _ => &["x", "y", "z"],
+                };
+                let field = names.get(k).copied().unwrap_or("value");
+                let token = line.split_whitespace().nth(k + 1).unwrap_or("");
                 return Err(Error::at_line(
                     path,
                     ln,
-                    format!("{what}: value {} is not finite", k + 1),
+                    format!(
+                        "{what} {field} (value {} on the line) is '{token}', which is not finite",
+                        k + 1
+                    ),
                 ));
             }
             Ok(v)
@@ -241,14 +251,15 @@ pub fn write(
         }
         s.push('\n');
     }
-    staged.write(path, s.as_bytes())?;
+    // Texture, then material, then the OBJ that names them: the order they are moved into
+    // place, so the file a reader opens first is the last to change.
     if let Some(tex) = texture {
         let tex_name = format!("{stem}.{}", tex.extension());
         let mtl = format!(
             "# written by scantex\nnewmtl material0\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\nmap_Kd {tex_name}\n"
         );
+        staged.write(&path.with_file_name(&tex_name), &tex.bytes)?;
         staged.write(&path.with_file_name(format!("{stem}.mtl")), mtl.as_bytes())?;
-        staged.write(&path.with_file_name(tex_name), &tex.bytes)?;
     }
-    Ok(())
+    staged.write(path, s.as_bytes())
 }

@@ -540,6 +540,7 @@ fn read_faces(
     let mut tex: Vec<f64> = Vec::new();
     for f in 0..el.count {
         src.begin_record()?;
+        let record_loc = src.loc();
         idx.clear();
         tex.clear();
         for (k, prop) in el.props.iter().enumerate() {
@@ -564,10 +565,18 @@ fn read_faces(
         let mut ids = Vec::with_capacity(idx.len());
         for &v in &idx {
             if v < 0.0 || v >= u32::MAX as f64 || v.fract() != 0.0 {
-                return Err(Error::at_element(
+                // A header that declares more vertices than the data holds makes faces' bytes
+                // read as vertices, and then the faces' own fields garbage: say so.
+                let why = if src.encoding == Encoding::Ascii {
+                    ""
+                } else {
+                    "; the faces' bytes are misaligned, so the header's element counts or \
+                     property types do not match the data (truncated or corrupt file?)"
+                };
+                return Err(Error::parse(
                     src.path,
-                    format!("face {f}"),
-                    format!("vertex index {v} is invalid"),
+                    record_loc,
+                    format!("face {f}: vertex index {v} is not a vertex number{why}"),
                 ));
             }
             ids.push(v as u32);
