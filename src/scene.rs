@@ -194,6 +194,18 @@ impl Photo {
     /// Probes the file and turns any problem into an error naming it.
     pub fn check(&self) -> Result<()> {
         match self.status() {
+            s @ (PhotoStatus::Ok | PhotoStatus::Missing) => self.verdict(s),
+            s => self.verdict(s).map_err(|e| {
+                Error::Invalid(format!(
+                    "{e} (--skip-bad-images leaves such photographs out)"
+                ))
+            }),
+        }
+    }
+
+    /// A probe's status as a result: an error naming the file for any problem.
+    fn verdict(&self, status: PhotoStatus) -> Result<()> {
+        match status {
             PhotoStatus::Ok => Ok(()),
             PhotoStatus::Missing => Err(Error::io(
                 &self.path,
@@ -205,10 +217,9 @@ impl Photo {
                     ),
                 ),
             )),
-            PhotoStatus::Unreadable(msg) => Err(Error::Invalid(format!(
-                "image {}: {msg} (--skip-bad-images leaves such photographs out)",
-                self.image_id
-            ))),
+            PhotoStatus::Unreadable(msg) => {
+                Err(Error::Invalid(format!("image {}: {msg}", self.image_id)))
+            }
             PhotoStatus::WrongSize { found, expected } => Err(Error::at_element(
                 &self.path,
                 format!("image {}", self.image_id),
@@ -314,25 +325,21 @@ impl Scene {
         let mut bad = Vec::new();
         if spec.skip_missing || spec.skip_bad {
             use rayon::prelude::*;
-            let verdicts: Vec<Result<()>> = photos
-                .par_iter()
-                .map(|p| match p.status() {
-                    PhotoStatus::Missing if !spec.skip_missing => Ok(()),
-                    PhotoStatus::Ok | PhotoStatus::Missing => Ok(()),
-                    _ => p.check(),
-                })
-                .collect();
+            let statuses: Vec<PhotoStatus> = photos.par_iter().map(Photo::status).collect();
             let mut keep = Vec::with_capacity(photos.len());
-            for (p, verdict) in photos.into_iter().zip(verdicts) {
-                if spec.skip_missing && !p.path.is_file() {
-                    skipped.push(p.name.clone());
-                } else if let (true, Err(e)) = (spec.skip_bad, &verdict) {
-                    bad.push(BadPhoto {
-                        name: p.name.clone(),
-                        reason: e.to_string(),
-                    });
-                } else {
-                    keep.push(p);
+            for (p, status) in photos.into_iter().zip(statuses) {
+                match status {
+                    PhotoStatus::Missing if spec.skip_missing => skipped.push(p.name.clone()),
+                    // Left for check_photos to report.
+                    PhotoStatus::Ok | PhotoStatus::Missing => keep.push(p),
+                    bad_status if spec.skip_bad => {
+                        let reason = p.verdict(bad_status).err().map(|e| e.to_string());
+                        bad.push(BadPhoto {
+                            name: p.name.clone(),
+                            reason: reason.unwrap_or_default(),
+                        });
+                    }
+                    _ => keep.push(p),
                 }
             }
             photos = keep;

@@ -448,6 +448,21 @@ fn names(err: &str, parts: &[&str]) {
     }
 }
 
+/// The first line of the file at `p` that starts with `prefix` (a record by its id).
+fn line_starting(p: &Path, prefix: &str) -> String {
+    let text = std::fs::read_to_string(p).unwrap();
+    let line = text.lines().find(|l| l.starts_with(prefix));
+    line.unwrap_or_else(|| panic!("no line starts with '{prefix}'"))
+        .to_string()
+}
+
+/// The observation line (POINTS2D) of the image named `name` in images.txt at `p`.
+fn observations_of(p: &Path, name: &str) -> String {
+    let text = std::fs::read_to_string(p).unwrap();
+    let mut lines = text.lines().skip_while(|l| !l.ends_with(name));
+    lines.nth(1).unwrap().to_string()
+}
+
 /// A real JPEG photograph (the bundled sample's first view), for truncation cases.
 fn sample_jpeg() -> Vec<u8> {
     std::fs::read(common::root().join("samples/torus/images/view_01.jpg")).unwrap()
@@ -684,12 +699,7 @@ fn non_finite_camera_parameters_and_point_values() {
     );
     let d = setup();
     let p = d.path().join("sparse/points3D.txt");
-    let text = std::fs::read_to_string(&p).unwrap();
-    let line = text
-        .lines()
-        .find(|l| l.starts_with("2 "))
-        .unwrap()
-        .to_string();
+    let line = line_starting(&p, "2 ");
     let mut t: Vec<&str> = line.split_whitespace().collect();
     t[7] = "nan";
     edit(&p, &line, &t.join(" "));
@@ -773,12 +783,7 @@ fn inconsistent_tracks_and_keypoints() {
     // A track element pointing at a keypoint that observes another point.
     let d = setup();
     let p = d.path().join("sparse/points3D.txt");
-    let text = std::fs::read_to_string(&p).unwrap();
-    let line = text
-        .lines()
-        .find(|l| l.starts_with("1 "))
-        .unwrap()
-        .to_string();
+    let line = line_starting(&p, "1 ");
     let fixed = line.replacen(" 2 0", " 2 1", 1);
     assert_ne!(fixed, line);
     edit(&p, &line, &fixed);
@@ -793,11 +798,7 @@ fn inconsistent_tracks_and_keypoints() {
     // A track element past the image's keypoints.
     let d = setup();
     let p = d.path().join("sparse/points3D.txt");
-    let line = text
-        .lines()
-        .find(|l| l.starts_with("1 "))
-        .unwrap()
-        .to_string();
+    let line = line_starting(&p, "1 ");
     edit(&p, &line, &line.replacen(" 2 0", " 2 9", 1));
     names(
         &fails(d.path(), &["."]),
@@ -806,13 +807,7 @@ fn inconsistent_tracks_and_keypoints() {
     // A keypoint far outside its image.
     let d = setup();
     let p = d.path().join("sparse/images.txt");
-    let text = std::fs::read_to_string(&p).unwrap();
-    let obs = text
-        .lines()
-        .skip_while(|l| !l.ends_with("img2.png"))
-        .nth(1)
-        .unwrap()
-        .to_string();
+    let obs = observations_of(&p, "img2.png");
     let mut t: Vec<String> = obs.split_whitespace().map(str::to_string).collect();
     t[0] = "1e9".into();
     edit(&p, &obs, &t.join(" "));
@@ -830,13 +825,7 @@ fn inconsistent_tracks_and_keypoints() {
 fn observation_lines_that_do_not_hold_triples() {
     let d = setup();
     let p = d.path().join("sparse/images.txt");
-    let text = std::fs::read_to_string(&p).unwrap();
-    let obs = text
-        .lines()
-        .skip_while(|l| !l.ends_with("img1.png"))
-        .nth(1)
-        .unwrap()
-        .to_string();
+    let obs = observations_of(&p, "img1.png");
     edit(&p, &obs, &format!("{obs} 5"));
     names(
         &fails(d.path(), &["."]),
@@ -849,11 +838,7 @@ fn duplicate_ids() {
     let d = setup();
     let p = d.path().join("sparse/cameras.txt");
     let text = std::fs::read_to_string(&p).unwrap();
-    let line = text
-        .lines()
-        .find(|l| l.starts_with("1 "))
-        .unwrap()
-        .to_string();
+    let line = line_starting(&p, "1 ");
     std::fs::write(&p, format!("{text}{line}\n")).unwrap();
     names(
         &fails(d.path(), &["."]),
@@ -862,11 +847,7 @@ fn duplicate_ids() {
     let d = setup();
     let p = d.path().join("sparse/points3D.txt");
     let text = std::fs::read_to_string(&p).unwrap();
-    let line = text
-        .lines()
-        .find(|l| l.starts_with("1 "))
-        .unwrap()
-        .to_string();
+    let line = line_starting(&p, "1 ");
     std::fs::write(&p, format!("{text}{line}\n")).unwrap();
     names(
         &fails(d.path(), &["."]),

@@ -415,8 +415,12 @@ fn sample_refuses_a_bad_gain_range() {
         .arg(&out)
         .output()
         .unwrap();
-    assert!(!o.status.success());
+    // A usage error (exit 2) that gives the valid range.
+    assert_eq!(o.status.code(), Some(2));
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.contains("gain range 1.5"), "{err}");
+    assert!(
+        err.contains("--gain-range") && err.contains("1.5") && err.contains("from 0 to 0.9"),
+        "{err}"
+    );
     assert!(!out.join("images").exists());
 }
