@@ -147,6 +147,11 @@ impl Default for BindOptions {
     }
 }
 
+/// View-weight exponents [`BindOptions::validate`] accepts.
+pub const WEIGHT_POWER_RANGE: std::ops::RangeInclusive<f64> = 0.0..=8.0;
+/// Depth-map sides (pixels) [`BindOptions::validate`] accepts.
+pub const DEPTH_RESOLUTION_RANGE: std::ops::RangeInclusive<u32> = 64..=16384;
+
 impl BindOptions {
     /// Checks ranges; the error names the option.
     pub fn validate(&self) -> Result<()> {
@@ -171,13 +176,13 @@ impl BindOptions {
                 self.consistency_threshold
             ));
         }
-        if !(0.0..=8.0).contains(&self.weight_power) {
+        if !WEIGHT_POWER_RANGE.contains(&self.weight_power) {
             return bad(format!(
                 "weight power {} must lie in [0, 8]",
                 self.weight_power
             ));
         }
-        if !(64..=16384).contains(&self.depth_resolution) {
+        if !DEPTH_RESOLUTION_RANGE.contains(&self.depth_resolution) {
             return bad(format!(
                 "depth resolution {} must lie in 64..=16384",
                 self.depth_resolution

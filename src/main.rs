@@ -43,13 +43,13 @@ enum Command {
         #[arg(long)]
         lambert: bool,
         /// Ambient fraction for Lambert shading.
-        #[arg(long, default_value_t = 0.35, allow_negative_numbers = true, value_parser = number_in(0.0f32, 1.0))]
+        #[arg(long, default_value_t = 0.35, allow_negative_numbers = true, value_parser = number_in(0.0f32..=1.0))]
         ambient: f32,
         /// Direction towards the light (world frame), for Lambert shading.
         #[arg(long, value_parser = parse_vec3, default_value = "0,0,1")]
         light: [f64; 3],
         /// Exposure gain for every image.
-        #[arg(long, default_value_t = 1.0, allow_negative_numbers = true, value_parser = number_in(0.0f32, 1e6))]
+        #[arg(long, default_value_t = 1.0, allow_negative_numbers = true, value_parser = number_in(0.0f32..=1e6))]
         gain: f32,
         /// White-balance gains R,G,B for every image.
         #[arg(long, value_parser = parse_vec3, default_value = "1,1,1")]
@@ -102,17 +102,17 @@ enum Command {
         #[arg(long, default_value = "auto")]
         background: String,
         /// RGB distance below which a vertex's sample counts as background.
-        #[arg(long, default_value_t = 0.06, allow_negative_numbers = true, value_parser = number_in(0.0f32, 2.0))]
+        #[arg(long, default_value_t = 0.06, allow_negative_numbers = true, value_parser = number_in(0.0f32..=2.0))]
         background_threshold: f32,
         /// Robust method: photo-consistency check per vertex, per face, or off.
         #[arg(long, default_value = "vertex")]
         consistency: scantex::bind::Consistency,
         /// Robust method: views farther than this (RGB distance) from the median of a
         /// vertex's views, and than 3 robust deviations, are dropped.
-        #[arg(long, default_value_t = 0.12, allow_negative_numbers = true, value_parser = number_in(0.0f32, 2.0))]
+        #[arg(long, default_value_t = 0.12, allow_negative_numbers = true, value_parser = number_in(0.0f32..=2.0))]
         consistency_threshold: f32,
         /// Robust method: exponent on the projected-area view weight.
-        #[arg(long, default_value_t = 1.0, allow_negative_numbers = true, value_parser = number_in(0.0, 8.0))]
+        #[arg(long, default_value_t = 1.0, allow_negative_numbers = true, value_parser = number_in(scantex::bind::WEIGHT_POWER_RANGE))]
         weight_power: f64,
         /// Per-photograph gains solved from overlaps: off, exposure (gain per channel) or
         /// lighting (also shading by surface normal). Default: lighting, off with
@@ -137,21 +137,21 @@ enum Command {
         #[arg(long)]
         merge_masks: Option<scantex::merge::Masks>,
         /// Multiband: most pyramid levels per chart (a chart gets log2(longer side) - 3).
-        #[arg(long, default_value_t = 2, allow_negative_numbers = true, value_parser = number_in(1u32, 12))]
+        #[arg(long, default_value_t = 2, allow_negative_numbers = true, value_parser = number_in(scantex::merge::LEVELS_RANGE))]
         levels: u32,
         /// Multiband: centre weight a of the 5-tap pyramid kernel (0.4 as the paper; OpenCV
         /// uses 0.375).
-        #[arg(long, default_value_t = 0.4, allow_negative_numbers = true, value_parser = number_in(0.2f32, 0.5))]
+        #[arg(long, default_value_t = 0.4, allow_negative_numbers = true, value_parser = number_in(scantex::merge::KERNEL_A_RANGE))]
         kernel_a: f32,
         /// Multiband with best-view masks: per face, this many photographs of largest weight
         /// are sampled at every texel; the others at every other texel, for the coarser bands
         /// only (0 = all at every texel; slower, same finest band).
-        #[arg(long, default_value_t = 2, allow_negative_numbers = true, value_parser = number_in(0usize, 1 << 20))]
+        #[arg(long, default_value_t = 2, allow_negative_numbers = true, value_parser = number_in(0usize..=1 << 20))]
         full_views: usize,
         /// Multiband with best-view masks: the finest band blends the fully sampled
         /// photographs by their view weights to this power (0 = equally; larger favours the
         /// best view; inf = the best view alone, which leaves a step where it changes).
-        #[arg(long, default_value_t = 2.0, allow_negative_numbers = true, value_parser = number_in(0.0f32, f32::INFINITY))]
+        #[arg(long, default_value_t = 2.0, allow_negative_numbers = true, value_parser = number_in(0.0f32..=f32::INFINITY))]
         fine_exponent: f32,
         /// Multiband: leave chart borders as blended, without the smooth per-chart correction
         /// that makes both sides of every border agree.
@@ -167,20 +167,20 @@ enum Command {
         restore_method: scantex::restore::Method,
         /// Largest unseen hole restored, texels; larger regions keep their vertex colours (0 =
         /// no limit; a region of a million texels takes minutes).
-        #[arg(long, default_value_t = 16384, allow_negative_numbers = true, value_parser = number_in(0usize, usize::MAX))]
+        #[arg(long, default_value_t = 16384, allow_negative_numbers = true, value_parser = number_in(0usize..=usize::MAX))]
         max_hole: usize,
         /// Seed of restoration's random choices (the same seed gives the same bytes).
-        #[arg(long, default_value_t = 0, allow_negative_numbers = true, value_parser = number_in(0u64, u64::MAX))]
+        #[arg(long, default_value_t = 0, allow_negative_numbers = true, value_parser = number_in(0u64..=u64::MAX))]
         seed: u64,
         /// Longest side of the per-photograph depth map, pixels.
-        #[arg(long, default_value_t = 2048, allow_negative_numbers = true, value_parser = number_in(64u32, 16384))]
+        #[arg(long, default_value_t = 2048, allow_negative_numbers = true, value_parser = number_in(scantex::bind::DEPTH_RESOLUTION_RANGE))]
         depth_resolution: u32,
         /// Robust method: most photographs sampled per face, the heaviest at its vertices; 0 =
         /// all.
-        #[arg(long, default_value_t = 12, allow_negative_numbers = true, value_parser = number_in(0usize, 1 << 20))]
+        #[arg(long, default_value_t = 12, allow_negative_numbers = true, value_parser = number_in(0usize..=1 << 20))]
         max_views: usize,
         /// Gutter texels filled by extending chart colours.
-        #[arg(long, default_value_t = 8, allow_negative_numbers = true, value_parser = number_in(0u32, 1024))]
+        #[arg(long, default_value_t = 8, allow_negative_numbers = true, value_parser = number_in(0u32..=1024))]
         gutter_fill: u32,
         /// Write the classification map, coverage map and atlas layout here.
         #[arg(long)]
@@ -205,23 +205,23 @@ enum Command {
         #[arg(long, default_value = "auto")]
         kappa: scantex::restore::Kappa,
         /// Levels of the high-band pyramid (1 to 8).
-        #[arg(long, default_value_t = 3, allow_negative_numbers = true, value_parser = number_in(1usize, 8))]
+        #[arg(long, default_value_t = 3, allow_negative_numbers = true, value_parser = number_in(scantex::restore::LEVELS_RANGE))]
         levels: usize,
         /// Seed for the choice of source pixels (the same seed gives the same bytes).
-        #[arg(long, default_value_t = 0, allow_negative_numbers = true, value_parser = number_in(0u64, u64::MAX))]
+        #[arg(long, default_value_t = 0, allow_negative_numbers = true, value_parser = number_in(0u64..=u64::MAX))]
         seed: u64,
         /// Neighbour search: fast (PCA-reduced kd-tree with exact re-ranking) or paper (exact
         /// kd-tree on full neighbourhoods; slower).
         #[arg(long, default_value = "fast")]
         method: scantex::restore::Method,
         /// Hertzmann's coherence parameter (0 = always take the search's match).
-        #[arg(long, default_value_t = 10.0, allow_negative_numbers = true, value_parser = number_in(0.0f32, 1e6))]
+        #[arg(long, default_value_t = 10.0, allow_negative_numbers = true, value_parser = number_in(0.0f32..=1e6))]
         coherence: f32,
         /// Fast method: source pixels per kernel orientation and window.
-        #[arg(long, default_value_t = 16384, allow_negative_numbers = true, value_parser = number_in(1usize, 1 << 30))]
+        #[arg(long, default_value_t = 16384, allow_negative_numbers = true, value_parser = number_in(1usize..=1 << 30))]
         max_sources: usize,
         /// Known pixels around a hole that may serve as its source, pixels.
-        #[arg(long, default_value_t = 64, allow_negative_numbers = true, value_parser = number_in(1usize, 1 << 16))]
+        #[arg(long, default_value_t = 64, allow_negative_numbers = true, value_parser = number_in(1usize..=1 << 16))]
         margin: usize,
         /// Synthesise the high band as it is, without dividing out its local amplitude (the
         /// paper's way; detail fades under intensity ramps).
@@ -229,7 +229,7 @@ enum Command {
         no_contrast_normalisation: bool,
         /// How much of the hole's local mean comes from diffusion instead of synthesis, 0
         /// (the paper) to 1 (closest to the truth at coarse scales, flatter to the eye).
-        #[arg(long, default_value_t = 0.6, allow_negative_numbers = true, value_parser = number_in(0.0f32, 1.0))]
+        #[arg(long, default_value_t = 0.6, allow_negative_numbers = true, value_parser = number_in(0.0f32..=1.0))]
         mean_from_diffusion: f32,
         /// Keep each hole's synthesised detail as it comes, without matching its energy to
         /// the surroundings' (the paper's way; joins between copied pieces add edges).
@@ -270,7 +270,7 @@ enum Command {
         /// Mesh with texture coordinates (.obj, .ply, .gltf, .glb).
         mesh: PathBuf,
         /// Texture size (texels per side, per UDIM page) for utilisation and overlaps.
-        #[arg(long, default_value_t = 4096, allow_negative_numbers = true, value_parser = number_in(16u32, 32768))]
+        #[arg(long, default_value_t = 4096, allow_negative_numbers = true, value_parser = number_in(scantex::atlas::SIZE_RANGE))]
         size: u32,
     },
     /// Generate a sample scene with known true colours.
@@ -286,13 +286,13 @@ enum Command {
         #[arg(long, default_value = "z")]
         up: String,
         /// Number of photographs.
-        #[arg(long, default_value_t = 16, allow_negative_numbers = true, value_parser = number_in(1usize, 100_000))]
+        #[arg(long, default_value_t = 16, allow_negative_numbers = true, value_parser = number_in(1usize..=100_000))]
         photos: usize,
         /// Random seed.
-        #[arg(long, default_value_t = 1, allow_negative_numbers = true, value_parser = number_in(0u64, u64::MAX))]
+        #[arg(long, default_value_t = 1, allow_negative_numbers = true, value_parser = number_in(0u64..=u64::MAX))]
         seed: u64,
         /// Largest per-photograph exposure and white-balance deviation (0.25 = +-25%).
-        #[arg(long, default_value_t = 0.25, allow_negative_numbers = true, value_parser = number_in(0.0, 0.9))]
+        #[arg(long, default_value_t = 0.25, allow_negative_numbers = true, value_parser = number_in(scantex::sample::GAIN_RANGE_LIMITS))]
         gain_range: f64,
         /// Light every photograph from the same direction (default: a random one each).
         #[arg(long)]
@@ -300,12 +300,16 @@ enum Command {
     },
 }
 
-/// A value parser for numbers in `lo..=hi` whose message gives the range, for negative
-/// numbers too (clap would otherwise take `-5` for a flag).
-fn number_in<T>(lo: T, hi: T) -> impl Fn(&str) -> Result<T, String> + Clone + Send + Sync + 'static
+/// A value parser for numbers in `range` whose message gives the range, for negative
+/// numbers too (clap would otherwise take `-5` for a flag). Ranges the library validates come
+/// from the library's own constants.
+fn number_in<T>(
+    range: std::ops::RangeInclusive<T>,
+) -> impl Fn(&str) -> Result<T, String> + Clone + Send + Sync + 'static
 where
     T: std::str::FromStr + PartialOrd + std::fmt::Display + Copy + Send + Sync + 'static,
 {
+    let (lo, hi) = (*range.start(), *range.end());
     move |s: &str| {
         let hi_text = hi.to_string();
         let range = if hi_text == "inf" || hi_text == u64::MAX.to_string() {
@@ -342,10 +346,10 @@ fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
 #[derive(Args)]
 struct AtlasArgs {
     /// Atlas size in texels.
-    #[arg(long, default_value_t = 4096, allow_negative_numbers = true, value_parser = number_in(16u32, 32768))]
+    #[arg(long, default_value_t = 4096, allow_negative_numbers = true, value_parser = number_in(scantex::atlas::SIZE_RANGE))]
     size: u32,
     /// Gutter between charts, in texels.
-    #[arg(long, default_value_t = 4, allow_negative_numbers = true, value_parser = number_in(0u32, 16384))]
+    #[arg(long, default_value_t = 4, allow_negative_numbers = true, value_parser = number_in(0u32..=16384))]
     gutter: u32,
     /// k in the visual importance w = 1 / (<N, V> + k); more than 1.
     #[arg(long, default_value_t = 1.5, allow_negative_numbers = true)]

@@ -134,12 +134,18 @@ impl Default for MergeOptions {
     }
 }
 
+/// Pyramid levels per chart [`MergeOptions::validate`] accepts.
+pub const LEVELS_RANGE: std::ops::RangeInclusive<u32> = 1..=12;
+/// Centre weights of the 5-tap kernel [`MergeOptions::validate`] accepts (the kernel stays
+/// positive).
+pub const KERNEL_A_RANGE: std::ops::RangeInclusive<f32> = 0.2..=0.5;
+
 impl MergeOptions {
     /// Checks the ranges; the error names the option.
     pub fn validate(&self) -> Result<()> {
-        if !(1..=12).contains(&self.levels) {
+        if !LEVELS_RANGE.contains(&self.levels) {
             return Err(Error::Invalid(format!(
-                "merge levels = {} must lie in 1..=12",
+                "merge levels = {} must lie in {LEVELS_RANGE:?}",
                 self.levels
             )));
         }
@@ -149,7 +155,7 @@ impl MergeOptions {
                 self.fine_exponent
             )));
         }
-        if !(0.2..=0.5).contains(&self.a) {
+        if !KERNEL_A_RANGE.contains(&self.a) {
             return Err(Error::Invalid(format!(
                 "kernel weight a = {} must lie in [0.2, 0.5] (the kernel must stay positive)",
                 self.a

@@ -43,6 +43,9 @@ pub struct SampleOptions {
     pub seed: u64,
 }
 
+/// Exposure and white-balance deviations [`SampleOptions::gain_range`] may take.
+pub const GAIN_RANGE_LIMITS: std::ops::RangeInclusive<f64> = 0.0..=0.9;
+
 impl Default for SampleOptions {
     fn default() -> Self {
         SampleOptions {
@@ -216,7 +219,7 @@ pub fn generate(
     opts: &SampleOptions,
     out: &Path,
 ) -> Result<SampleReport> {
-    if !(0.0..=0.9).contains(&opts.gain_range) {
+    if !GAIN_RANGE_LIMITS.contains(&opts.gain_range) {
         return Err(Error::Invalid(format!(
             "gain range {} must lie in [0, 0.9]",
             opts.gain_range

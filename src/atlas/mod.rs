@@ -187,6 +187,9 @@ impl Default for AtlasOptions {
     }
 }
 
+/// Atlas sizes (texels per side) [`AtlasOptions::validate`] accepts.
+pub const SIZE_RANGE: std::ops::RangeInclusive<u32> = 16..=32768;
+
 impl AtlasOptions {
     /// Checks the options' ranges; the error says which option is out of range.
     pub fn validate(&self) -> crate::Result<()> {
@@ -205,9 +208,9 @@ impl AtlasOptions {
                 ));
             }
         }
-        if !(16..=32768).contains(&self.pack.size) {
+        if !SIZE_RANGE.contains(&self.pack.size) {
             return bad(format!(
-                "atlas size {} must lie in 16..=32768",
+                "atlas size {} must lie in {SIZE_RANGE:?}",
                 self.pack.size
             ));
         }

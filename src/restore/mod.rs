@@ -146,10 +146,13 @@ impl Default for RestoreOptions {
     }
 }
 
+/// High-band pyramid levels [`RestoreOptions`] accepts.
+pub const LEVELS_RANGE: std::ops::RangeInclusive<usize> = 1..=8;
+
 impl RestoreOptions {
     /// Checks ranges.
     pub fn validate(&self) -> Result<()> {
-        if !(1..=8).contains(&self.levels) {
+        if !LEVELS_RANGE.contains(&self.levels) {
             return Err(Error::Invalid(format!(
                 "restoration levels must be 1 to 8, not {}",
                 self.levels
