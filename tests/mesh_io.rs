@@ -365,3 +365,50 @@ fn fuzz_ply_zero_property_element_with_huge_count() {
     // Not a timing target: a regression back to the loop would take years, not seconds.
     assert!(started.elapsed().as_secs() < 60);
 }
+
+/// Found by fuzzing (fuzz/run.sh gltf): a primitive whose POSITION names an accessor the file
+/// does not have made the gltf crate's own validation index out of bounds (a panic, caught,
+/// but printed with a backtrace and reported as a buffer overrun). It is an error naming the
+/// primitive, with no panic.
+#[test]
+fn fuzz_gltf_dangling_position_accessor() {
+    let doc = br#"{"asset":{"version":"2.0"},"scene":0,"scenes":[{"nodes":[0]}],"nodes":[{"mesh":0}],"meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}]}"#;
+    let err = io::gltf::parse(Path::new("dangling.gltf"), doc)
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(
+        err.contains("dangling.gltf (mesh 0 primitive 0)") && err.contains("accessor 0"),
+        "{err}"
+    );
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("dangling.gltf");
+    std::fs::write(&p, doc).unwrap();
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_scantex"))
+        .args(["info", "--mesh"])
+        .arg(&p)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}
+
+/// Found by fuzzing (fuzz/run.sh gltf, second run): a GLB header whose length field is below
+/// the header's own 12 bytes made the gltf crate subtract with overflow (a panic in builds
+/// with overflow checks, such as the tests'). It is an error naming the byte.
+#[test]
+fn fuzz_glb_length_shorter_than_its_header() {
+    let mut glb = b"glTF".to_vec();
+    glb.extend_from_slice(&2u32.to_le_bytes());
+    glb.extend_from_slice(&4u32.to_le_bytes());
+    glb.extend_from_slice(b"\x10\0\0\0JSON{}              ");
+    let err = io::gltf::parse(Path::new("short.glb"), &glb)
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(
+        err.contains("short.glb (byte 8)") && err.contains("declares 4 bytes"),
+        "{err}"
+    );
+}

@@ -15,7 +15,9 @@ use std::path::Path;
 /// error naming the file, so bad input never takes the process down.
 pub fn read(path: &Path) -> Result<(Mesh, LoadReport)> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| parse(path, &bytes))) {
+    let caught =
+        quietly(|| std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| parse(path, &bytes))));
+    match caught {
         Ok(r) => r,
         Err(_) => Err(Error::parse(
             path,
@@ -25,14 +27,45 @@ pub fn read(path: &Path) -> Result<(Mesh, LoadReport)> {
     }
 }
 
+thread_local! {
+    /// Set while this thread runs code whose panics are caught and turned into errors.
+    static QUIET: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Runs `f` with the panic message of this thread silenced: a panic that [`read`] catches and
+/// reports as an error naming the file must not also print a backtrace. Every other panic, on
+/// every thread, still goes to the hook that was installed before.
+fn quietly<T>(f: impl FnOnce() -> T) -> T {
+    static HOOK: std::sync::Once = std::sync::Once::new();
+    HOOK.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if !QUIET.with(|q| q.get()) {
+                previous(info);
+            }
+        }));
+    });
+    QUIET.with(|q| q.set(true));
+    let out = f();
+    QUIET.with(|q| q.set(false));
+    out
+}
+
 /// Parses the bytes of a `.gltf` or `.glb` file; external buffers and textures are looked up
 /// beside `path`, which also names the file in errors. Unlike [`read`], a panic inside the
 /// `gltf` crate is not caught here (so fuzzing sees it).
 pub fn parse(path: &Path, bytes: &[u8]) -> Result<(Mesh, LoadReport)> {
-    let g = gltf::Gltf::from_slice(bytes).map_err(|e| match e {
+    let gltf_error = |e: gltf::Error| match e {
         gltf::Error::Io(io) => Error::io(path, io),
         other => Error::parse(path, crate::error::Location::File, other.to_string()),
-    })?;
+    };
+    check_glb_length(path, bytes)?;
+    let raw = gltf::Gltf::from_slice_without_validation(bytes).map_err(gltf_error)?;
+    check_position_accessors(path, raw.document.as_json())?;
+    let g = gltf::Gltf {
+        document: gltf::Document::from_json(raw.document.into_json()).map_err(gltf_error)?,
+        blob: raw.blob,
+    };
     let base = path.parent().unwrap_or(Path::new("."));
     let buffers = gltf::import_buffers(&g.document, Some(base), g.blob.clone())
         .map_err(|e| buffer_error(path, base, &g.document, e))?;
@@ -469,6 +502,52 @@ pub fn write_glb(
 
 fn f32_bytes<'a>(v: impl Iterator<Item = &'a f32>) -> Vec<u8> {
     v.flat_map(|f| f.to_le_bytes()).collect()
+}
+
+/// A GLB whose header declares fewer bytes than the header itself: the `gltf` crate subtracts
+/// the header's size from that length unchecked (gltf 1.4.1, `Glb::from_slice`), which panics
+/// where overflow is checked (found by fuzzing: `fuzz_glb_length_shorter_than_its_header`).
+fn check_glb_length(path: &Path, bytes: &[u8]) -> Result<()> {
+    if bytes.len() >= 12 && bytes.starts_with(b"glTF") {
+        let declared = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
+        if declared < 12 {
+            return Err(Error::parse(
+                path,
+                crate::error::Location::Byte(8),
+                format!("GLB header declares {declared} bytes, fewer than its own 12"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The `gltf` crate's validation indexes the accessor of every primitive's POSITION before it
+/// checks that the accessor exists (gltf-json 1.4.1, `primitive_validate_hook`), and panics on
+/// a dangling index (found by fuzzing: `fuzz_gltf_dangling_position_accessor`). Checked here
+/// first, so the error names the primitive.
+fn check_position_accessors(path: &Path, root: &gltf::json::Root) -> Result<()> {
+    use gltf::json::validation::Checked;
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            let pos = prim
+                .attributes
+                .get(&Checked::Valid(gltf::json::mesh::Semantic::Positions));
+            if let Some(i) = pos {
+                if i.value() >= root.accessors.len() {
+                    return Err(Error::at_element(
+                        path,
+                        format!("mesh {m} primitive {p}"),
+                        format!(
+                            "POSITION names accessor {}, but the file has {} accessors",
+                            i.value(),
+                            root.accessors.len()
+                        ),
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 /// A buffer that could not be loaded, named by its index and, for an external file, its path:
