@@ -374,8 +374,7 @@ fn fuzz_ply_zero_property_element_with_huge_count() {
 fn fuzz_gltf_dangling_position_accessor() {
     let doc = br#"{"asset":{"version":"2.0"},"scene":0,"scenes":[{"nodes":[0]}],"nodes":[{"mesh":0}],"meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}]}"#;
     let err = io::gltf::parse(Path::new("dangling.gltf"), doc)
-        .err()
-        .expect("refused")
+        .expect_err("refused")
         .to_string();
     assert!(
         err.contains("dangling.gltf (mesh 0 primitive 0)") && err.contains("accessor 0"),
@@ -404,8 +403,7 @@ fn fuzz_glb_length_shorter_than_its_header() {
     glb.extend_from_slice(&4u32.to_le_bytes());
     glb.extend_from_slice(b"\x10\0\0\0JSON{}              ");
     let err = io::gltf::parse(Path::new("short.glb"), &glb)
-        .err()
-        .expect("refused")
+        .expect_err("refused")
         .to_string();
     assert!(
         err.contains("short.glb (byte 8)") && err.contains("declares 4 bytes"),
