@@ -410,3 +410,25 @@ fn fuzz_glb_length_shorter_than_its_header() {
         "{err}"
     );
 }
+
+/// Found by fuzzing (fuzz/run.sh gltf, third run): a NORMAL accessor of VEC2 was read as VEC3
+/// (the gltf crate only debug-asserts the size). Every attribute the reader takes must have
+/// the format glTF requires, or the file is refused naming the primitive.
+#[test]
+fn fuzz_gltf_normals_of_the_wrong_type() {
+    let doc = br#"{"asset":{"version":"2.0"},"scene":0,"scenes":[{"nodes":[0]}],"nodes":[{"mesh":0}],
+        "meshes":[{"primitives":[{"attributes":{"POSITION":0,"NORMAL":1}}]}],
+        "buffers":[{"uri":"data:application/octet-stream;base64,AAAAAAAAAAAAAAAAAACAPwAAAAAAAAAAAAAAAAAAgD8AAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAAA","byteLength":60}],
+        "bufferViews":[{"buffer":0,"byteLength":36},{"buffer":0,"byteOffset":36,"byteLength":24}],
+        "accessors":[{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]},
+                     {"bufferView":1,"componentType":5126,"count":3,"type":"VEC2"}]}"#;
+    let err = io::gltf::parse(Path::new("normals.gltf"), doc)
+        .expect_err("refused")
+        .to_string();
+    assert!(
+        err.contains("normals.gltf (mesh 0 primitive 0)")
+            && err.contains("Normals accessor 1")
+            && err.contains("VEC3 of F32"),
+        "{err}"
+    );
+}

@@ -183,6 +183,7 @@ impl Builder {
             ) {
                 continue;
             }
+            check_formats(path, &elem, &prim)?;
             let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
             let Some(pos) = reader.read_positions() else {
                 return Err(Error::at_element(
@@ -502,6 +503,49 @@ pub fn write_glb(
 
 fn f32_bytes<'a>(v: impl Iterator<Item = &'a f32>) -> Vec<u8> {
     v.flat_map(|f| f.to_le_bytes()).collect()
+}
+
+/// The accessor formats the reader is asked for: the `gltf` crate reads an attribute as the
+/// type its semantic implies and only debug-asserts that the accessor holds it (found by
+/// fuzzing: `fuzz_gltf_normals_of_the_wrong_type`), so a VEC2 normal would be read out of step.
+fn check_formats(path: &Path, elem: &str, prim: &gltf::Primitive) -> Result<()> {
+    use gltf::accessor::{DataType as D, Dimensions as N};
+    use gltf::Semantic as S;
+    let wrong = |what: &str, a: &gltf::Accessor, want: &str| {
+        Err(Error::at_element(
+            path,
+            elem,
+            format!(
+                "{what} accessor {} holds {:?} of {:?}; glTF requires {want}",
+                a.index(),
+                a.dimensions(),
+                a.data_type()
+            ),
+        ))
+    };
+    for (semantic, a) in prim.attributes() {
+        let (d, t) = (a.dimensions(), a.data_type());
+        match semantic {
+            S::Positions | S::Normals if !(d == N::Vec3 && t == D::F32) => {
+                return wrong(&format!("{semantic:?}"), &a, "VEC3 of F32");
+            }
+            S::TexCoords(_) if !(d == N::Vec2 && matches!(t, D::F32 | D::U8 | D::U16)) => {
+                return wrong("TEXCOORD", &a, "VEC2 of F32, U8 or U16");
+            }
+            S::Colors(_)
+                if !(matches!(d, N::Vec3 | N::Vec4) && matches!(t, D::F32 | D::U8 | D::U16)) =>
+            {
+                return wrong("COLOR", &a, "VEC3 or VEC4 of F32, U8 or U16");
+            }
+            _ => {}
+        }
+    }
+    if let Some(a) = prim.indices() {
+        if !(a.dimensions() == N::Scalar && matches!(a.data_type(), D::U8 | D::U16 | D::U32)) {
+            return wrong("indices", &a, "SCALAR of U8, U16 or U32");
+        }
+    }
+    Ok(())
 }
 
 /// A GLB whose header declares fewer bytes than the header itself: the `gltf` crate subtracts
