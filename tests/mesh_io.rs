@@ -432,3 +432,21 @@ fn fuzz_gltf_normals_of_the_wrong_type() {
         "{err}"
     );
 }
+
+/// Found by fuzzing (fuzz/run.sh gltf, fourth run): an accessor with count 0 made the gltf
+/// crate compute `count - 1` with overflow. glTF requires at least one element.
+#[test]
+fn fuzz_gltf_accessor_with_no_elements() {
+    let doc = br#"{"asset":{"version":"2.0"},"scene":0,"scenes":[{"nodes":[0]}],"nodes":[{"mesh":0}],
+        "meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}],
+        "buffers":[{"uri":"data:application/octet-stream;base64,AAAAAAAAAAAAAAAA","byteLength":12}],
+        "bufferViews":[{"buffer":0,"byteLength":12}],
+        "accessors":[{"bufferView":0,"componentType":5126,"count":0,"type":"VEC3","min":[0,0,0],"max":[1,1,0]}]}"#;
+    let err = io::gltf::parse(Path::new("empty.gltf"), doc)
+        .expect_err("refused")
+        .to_string();
+    assert!(
+        err.contains("empty.gltf (mesh 0 primitive 0)") && err.contains("at least one element"),
+        "{err}"
+    );
+}

@@ -516,14 +516,20 @@ fn check_formats(path: &Path, elem: &str, prim: &gltf::Primitive) -> Result<()> 
             path,
             elem,
             format!(
-                "{what} accessor {} holds {:?} of {:?}; glTF requires {want}",
+                "{what} accessor {} holds {} {:?} of {:?}; glTF requires {want}",
                 a.index(),
+                a.count(),
                 a.dimensions(),
                 a.data_type()
             ),
         ))
     };
     for (semantic, a) in prim.attributes() {
+        // glTF requires count >= 1; the crate computes `count - 1` unchecked (found by
+        // fuzzing: `fuzz_gltf_accessor_with_no_elements`).
+        if a.count() == 0 {
+            return wrong(&format!("{semantic:?}"), &a, "at least one element");
+        }
         let (d, t) = (a.dimensions(), a.data_type());
         match semantic {
             S::Positions | S::Normals if !(d == N::Vec3 && t == D::F32) => {
@@ -541,7 +547,9 @@ fn check_formats(path: &Path, elem: &str, prim: &gltf::Primitive) -> Result<()> 
         }
     }
     if let Some(a) = prim.indices() {
-        if !(a.dimensions() == N::Scalar && matches!(a.data_type(), D::U8 | D::U16 | D::U32)) {
+        if a.count() == 0
+            || !(a.dimensions() == N::Scalar && matches!(a.data_type(), D::U8 | D::U16 | D::U32))
+        {
             return wrong("indices", &a, "SCALAR of U8, U16 or U32");
         }
     }
