@@ -483,10 +483,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             let staged = json
                 .as_deref()
                 .map(|p| {
-                    let label = p
-                        .file_name()
-                        .map(|s| s.to_string_lossy().into_owned())
-                        .unwrap_or_default();
+                    let label = scantex::io::staging::label_of(p);
                     scantex::io::Staged::begin(&label, &[parent_dir(p)])
                 })
                 .transpose()?;
@@ -634,10 +631,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             let layout = out.with_file_name(format!("{stem}_layout.png"));
             let mut dirs = vec![parent_dir(&out)];
             dirs.extend(report.as_deref().map(parent_dir));
-            let label = out
-                .file_name()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default();
+            let label = scantex::io::staging::label_of(&out);
             let mut staged = scantex::io::Staged::begin(&label, &dirs)?;
             let (input, _) = scantex::io::read_mesh(&mesh)?;
             let mut opts = scantex::atlas::AtlasOptions::default();
@@ -729,10 +723,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
                 match_detail: !no_detail_match,
                 ..Default::default()
             };
-            let label = out
-                .file_name()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default();
+            let label = scantex::io::staging::label_of(&out);
             scantex::io::image::planar_output_format(&out)?;
             let staged = scantex::io::Staged::begin(&label, &[parent_dir(&out)])?;
             let (img, depth) = scantex::io::image::read_planar(&image)?;

@@ -151,11 +151,7 @@ impl EncodedTexture {
 /// Writes `mesh` in the format its extension names (OBJ writes `.mtl` and the texture beside
 /// it). All files appear together or not at all.
 pub fn write_mesh(path: &Path, mesh: &Mesh, texture: Option<&EncodedTexture>) -> Result<()> {
-    let label = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "mesh".into());
-    let mut staged = Staged::new(&label);
+    let mut staged = Staged::new(&staging::label_of(path));
     stage_mesh(&mut staged, path, mesh, texture)?;
     staged.commit()
 }

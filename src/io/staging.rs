@@ -288,13 +288,16 @@ pub fn abort_all() {
     }
 }
 
+/// The staging label of a single-file output: its file name.
+pub fn label_of(path: &Path) -> String {
+    path.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "out".into())
+}
+
 /// Writes `bytes` to `path` through a staging directory and a rename.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let label = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "out".into());
-    let mut s = Staged::new(&label);
+    let mut s = Staged::new(&label_of(path));
     s.write(path, bytes)?;
     s.commit()
 }
