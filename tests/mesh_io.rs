@@ -450,3 +450,18 @@ fn fuzz_gltf_accessor_with_no_elements() {
         "{err}"
     );
 }
+
+/// Fifth gltf fuzz finding: a relative buffer URI whose percent escape (`%AA`) is not UTF-8 made
+/// the `gltf` crate panic while decoding it.
+#[test]
+fn fuzz_gltf_buffer_uri_that_is_not_utf8() {
+    let doc = std::fs::read("fuzz/regressions/gltf/crash-de1c8c1206803213be414bac76dca1359d5e0d9c")
+        .expect("regression input is committed");
+    let err = io::gltf::parse(Path::new("escape.gltf"), &doc)
+        .expect_err("refused")
+        .to_string();
+    assert!(
+        err.contains("escape.gltf (buffer 0)") && err.contains("not UTF-8"),
+        "{err}"
+    );
+}

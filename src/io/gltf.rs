@@ -67,6 +67,7 @@ pub fn parse(path: &Path, bytes: &[u8]) -> Result<(Mesh, LoadReport)> {
         blob: raw.blob,
     };
     let base = path.parent().unwrap_or(Path::new("."));
+    check_buffer_uris(path, &g.document)?;
     let buffers = gltf::import_buffers(&g.document, Some(base), g.blob.clone())
         .map_err(|e| buffer_error(path, base, &g.document, e))?;
     let mut out = Builder::default();
@@ -307,31 +308,9 @@ fn texture_source(
         // Textures inlined as data URIs are not kept (rare in scans; the mesh still loads).
         gltf::image::Source::Uri { uri, .. } if uri.starts_with("data:") => None,
         gltf::image::Source::Uri { uri, .. } => {
-            Some(TextureSource::File(base.join(percent_decode(uri))))
+            Some(TextureSource::File(base.join(percent_decode(uri)?)))
         }
     }
-}
-
-/// Minimal percent-decoding for URIs such as `my%20texture.png`.
-fn percent_decode(s: &str) -> String {
-    let b = s.as_bytes();
-    let mut out = Vec::with_capacity(b.len());
-    let mut i = 0;
-    while i < b.len() {
-        if b[i] == b'%' && i + 2 < b.len() {
-            if let Some(v) = std::str::from_utf8(&b[i + 1..i + 3])
-                .ok()
-                .and_then(|h| u8::from_str_radix(h, 16).ok())
-            {
-                out.push(v);
-                i += 3;
-                continue;
-            }
-        }
-        out.push(b[i]);
-        i += 1;
-    }
-    String::from_utf8_lossy(&out).into_owned()
 }
 
 /// Writes a binary glTF (`.glb`) with positions, normals, UVs (if any) and the texture
@@ -602,6 +581,58 @@ fn check_position_accessors(path: &Path, root: &gltf::json::Root) -> Result<()> 
     Ok(())
 }
 
+/// The file a relative buffer URI names, or `None` when the URI has a scheme (`data:`, `file:`)
+/// or its escapes do not decode to UTF-8.
+fn relative_uri_path(uri: &str) -> Option<String> {
+    if uri.contains(':') {
+        return None;
+    }
+    percent_decode(uri)
+}
+
+/// Percent escapes decoded (`my%20texture.png`) as the `gltf` crate does; `None` when the result
+/// is not UTF-8.
+fn percent_decode(uri: &str) -> Option<String> {
+    let b = uri.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        let hex = |c: u8| (c as char).to_digit(16);
+        match (
+            b[i],
+            b.get(i + 1).copied().and_then(hex),
+            b.get(i + 2).copied().and_then(hex),
+        ) {
+            (b'%', Some(hi), Some(lo)) => {
+                out.push((hi * 16 + lo) as u8);
+                i += 3;
+            }
+            (c, _, _) => {
+                out.push(c);
+                i += 1;
+            }
+        }
+    }
+    String::from_utf8(out).ok()
+}
+
+/// Relative buffer URIs whose percent escapes are not UTF-8 are refused here: the `gltf` crate
+/// unwraps that decoding and would panic (found by fuzzing).
+fn check_buffer_uris(path: &Path, doc: &gltf::Document) -> Result<()> {
+    for b in doc.buffers() {
+        if let gltf::buffer::Source::Uri(uri) = b.source() {
+            if !uri.contains(':') && relative_uri_path(uri).is_none() {
+                return Err(Error::at_element(
+                    path,
+                    format!("buffer {}", b.index()),
+                    format!("URI {uri:?} has percent escapes that are not UTF-8"),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
 /// A buffer that could not be loaded, named by its index and, for an external file, its path:
 /// the crate's own error gives only the operating system's words.
 fn buffer_error(path: &Path, base: &Path, doc: &gltf::Document, e: gltf::Error) -> Error {
@@ -610,7 +641,10 @@ fn buffer_error(path: &Path, base: &Path, doc: &gltf::Document, e: gltf::Error) 
             if uri.starts_with("data:") {
                 continue;
             }
-            let file = base.join(uri);
+            let Some(name) = relative_uri_path(uri) else {
+                continue;
+            };
+            let file = base.join(name);
             match std::fs::metadata(&file) {
                 Err(io) => {
                     return Error::at_element(
