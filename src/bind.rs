@@ -17,10 +17,9 @@ use crate::depth::{focal_px, DepthMap};
 use crate::error::{Error, Result};
 use crate::io::image::PhotoPixels;
 use crate::mesh::{FaceId, Mesh};
-use crate::photometric::Gains;
+use crate::photos::for_each_photo;
 use crate::progress::Progress;
 use crate::scene::Photo;
-use image::GrayImage;
 use nalgebra::{Point2, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -37,6 +36,16 @@ pub enum Method {
     /// rejection of outlying views per vertex, mip-mapped photo samples. Default.
     #[default]
     Robust,
+}
+
+impl std::fmt::Display for Method {
+    /// The name `from_str` reads.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Method::Paper => "paper",
+            Method::Robust => "robust",
+        })
+    }
 }
 
 impl std::str::FromStr for Method {
@@ -66,6 +75,47 @@ pub enum Background {
     Off,
 }
 
+impl std::fmt::Display for Background {
+    /// The text `from_str` reads: `auto`, `off` or `r,g,b`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Background::Estimate => f.write_str("auto"),
+            Background::Off => f.write_str("off"),
+            Background::Color([r, g, b]) => write!(f, "{r},{g},{b}"),
+        }
+    }
+}
+
+impl std::str::FromStr for Background {
+    type Err = String;
+    /// `auto` (estimated per photograph), `off`, or a colour `r,g,b`.
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s.trim() {
+            "auto" => return Ok(Background::Estimate),
+            "off" => return Ok(Background::Off),
+            _ => {}
+        }
+        let v: Vec<f32> = s
+            .split(',')
+            .map(|t| {
+                t.trim().parse::<f32>().map_err(|_| {
+                    format!(
+                        "'{}' is not a number (background: auto, off or r,g,b)",
+                        t.trim()
+                    )
+                })
+            })
+            .collect::<std::result::Result<_, _>>()?;
+        // The range is checked by BindOptions::validate, which names the option.
+        match v.as_slice() {
+            [r, g, b] => Ok(Background::Color([*r, *g, *b])),
+            _ => Err(format!(
+                "background '{s}': expected auto, off or three numbers r,g,b"
+            )),
+        }
+    }
+}
+
 /// Where the robust method's photo-consistency check applies.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Consistency {
@@ -80,6 +130,17 @@ pub enum Consistency {
     Vertex,
     /// No check.
     Off,
+}
+
+impl std::fmt::Display for Consistency {
+    /// The name `from_str` reads.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Consistency::Face => "face",
+            Consistency::Vertex => "vertex",
+            Consistency::Off => "off",
+        })
+    }
 }
 
 impl std::str::FromStr for Consistency {
@@ -265,9 +326,6 @@ pub struct Binding {
     /// The options the binding was made with (resampling follows the same method, depth
     /// resolution and consistency rule).
     pub options: BindOptions,
-    /// Per-photograph gains the sample colours were corrected by (identity until
-    /// [`crate::photometric::normalise`]); resampling corrects texels the same way.
-    pub gains: Gains,
 }
 
 impl Binding {
@@ -281,7 +339,6 @@ impl Binding {
             rejections: Rejections::default(),
             per_photo: Vec::new(),
             options: BindOptions::default(),
-            gains: Gains::identity(photos),
         }
     }
 
@@ -349,74 +406,6 @@ impl VertexFaces {
     pub(crate) fn of(&self, v: usize) -> &[u32] {
         &self.faces[self.offsets[v] as usize..self.offsets[v + 1] as usize]
     }
-}
-
-/// A decoded photograph with its mask.
-struct Decoded {
-    rgb: PhotoPixels,
-    mask: Option<GrayImage>,
-}
-
-fn decode(p: &Photo, spare: Vec<u8>) -> Result<Decoded> {
-    Ok(Decoded {
-        rgb: p.load_pixels(spare)?,
-        mask: p.load_mask()?,
-    })
-}
-
-/// Runs `work` on every photograph in order, decoding the next one while `work` runs on the
-/// current one: at most two photographs are in memory.
-pub(crate) fn for_each_photo(
-    photos: &[Photo],
-    progress: &dyn Progress,
-    mut work: impl FnMut(usize, &PhotoPixels, Option<&GrayImage>) -> Result<()> + Send,
-) -> Result<()> {
-    for_each_photo_with(
-        photos,
-        progress,
-        |_, _| (),
-        |i, rgb, mask, ()| work(i, rgb, mask),
-    )
-}
-
-/// [`for_each_photo`] with a per-photograph `prepare` step (depth map, mip pyramid) that runs
-/// with the decoding, beside `work` on the previous photograph, and whose result `work` gets.
-pub(crate) fn for_each_photo_with<T: Send>(
-    photos: &[Photo],
-    progress: &dyn Progress,
-    prepare: impl Fn(usize, &PhotoPixels) -> T + Sync,
-    mut work: impl FnMut(usize, &PhotoPixels, Option<&GrayImage>, T) -> Result<()> + Send,
-) -> Result<()> {
-    if photos.is_empty() {
-        return Ok(());
-    }
-    let load = |i: usize, spare: Vec<u8>| -> Result<(Decoded, T)> {
-        let d = decode(&photos[i], spare)?;
-        let t = prepare(i, &d.rgb);
-        Ok((d, t))
-    };
-    let mut current = load(0, Vec::new())?;
-    // The buffer of the photograph before the current one, for the next one to decode into.
-    let mut spare = Vec::new();
-    for i in 0..photos.len() {
-        let (cur, extra) = current;
-        let (next, done) = rayon::join(
-            || {
-                (i + 1 < photos.len())
-                    .then(|| load(i + 1, std::mem::take(&mut spare)))
-                    .transpose()
-            },
-            || work(i, &cur.rgb, cur.mask.as_ref(), extra),
-        );
-        done?;
-        spare = cur.rgb.into_spare();
-        progress.advance(1);
-        match next? {
-            Some(n) => current = n,
-            None => break,
-        }
-    }
-    Ok(())
 }
 
 /// 3x3 Gaussian weights (1 2 1 / 2 4 2 / 1 2 1) / 16.
@@ -512,7 +501,7 @@ pub fn bind(
         .collect();
     let mean_edge = mesh.mean_edge_length();
     // The paper's segment test needs a BVH; the robust method reads its depth maps instead.
-    let rays = (opts.method == Method::Paper).then(|| crate::render::RayMesh::new(mesh));
+    let rays = (opts.method == Method::Paper).then(|| crate::raycast::RayMesh::new(mesh));
     let mut pairs: Vec<(u32, ViewSample)> = Vec::new();
     let mut rejections = Rejections::default();
     let mut per_photo = Vec::with_capacity(photos.len());
@@ -662,7 +651,6 @@ pub fn bind(
         rejections,
         per_photo,
         options: *opts,
-        gains: Gains::identity(photos.len()),
     };
     if opts.method == Method::Robust && opts.consistency == Consistency::Vertex {
         drop_inconsistent(&mut binding, opts.consistency_threshold);

@@ -4,7 +4,8 @@
 //! and completeness (footprint pixels the texture actually covers).
 
 use crate::error::Result;
-use crate::render::{render, RayMesh, RenderOptions, Texture};
+use crate::raycast::RayMesh;
+use crate::render::{render, RenderOptions, Texture};
 use crate::scene::Photo;
 use image::{GrayImage, Rgb32FImage};
 use serde::Serialize;

@@ -22,8 +22,8 @@
 //! differences along a border do not pull. Solved by conjugate gradients with a Jacobi
 //! preconditioner, matrix-free.
 
+use crate::atlas::texels::border_samples;
 use crate::mesh::Mesh;
-use crate::seams::border_samples;
 use nalgebra::Vector2;
 use rayon::prelude::*;
 use serde::Serialize;

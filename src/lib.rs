@@ -9,11 +9,11 @@
 //! | stage | function | in -> out |
 //! |---|---|---|
 //! | 0. load | [`scene::Scene::load`] | [`scene::SceneSpec`] -> [`mesh::Mesh`], [`camera::colmap::Reconstruction`], [`scene::Photo`]s (lazily decoded) |
-//! | 1. atlas | [`atlas::parameterize`] | [`mesh::Mesh`] + view direction -> mesh with per-corner UVs, [`atlas::AtlasReport`] |
+//! | 1. atlas | [`atlas::build`] ([`atlas::keep`] for the mesh's own UVs; [`atlas::parameterize`] alone) | welded [`mesh::Mesh`] + view direction -> mesh with per-corner UVs, [`atlas::Atlas`] (charts, face -> chart, texel -> face, built once), [`atlas::AtlasReport`] |
 //! | 2. bind | [`bind::bind`] | [`mesh::Mesh`] + normals + [`scene::Photo`]s -> [`bind::Binding`] (valid views per vertex) |
-//! | 2b. gains | [`photometric::normalise`] | [`bind::Binding`] + normals -> the binding with per-photograph gain fields applied (exposure, white balance, shading) |
-//! | 3. resample | [`resample::resample`] | [`mesh::Mesh`] + [`bind::Binding`] + photos -> [`resample::Resampled`] (atlas colour, texel sources, triangle classes); stage 4 calls it per photograph and chart |
-//! | 4. merge | [`merge::merge`] | mesh + [`bind::Binding`] + photos -> [`resample::Resampled`] (photographs resampled and combined by a chart-aware multiresolution spline; texels no photograph's mask covers marked) |
+//! | 2b. gains | [`photometric::normalise`] | [`bind::Binding`] + normals -> the binding with per-photograph gain fields applied, and the [`photometric::Gains`] (exposure, white balance, shading) |
+//! | 3. resample | [`resample::resample`] | [`mesh::Mesh`] + [`atlas::Atlas`] + [`bind::Binding`] + [`photometric::Gains`] + photos -> [`resample::Resampled`] (atlas colour, texel sources, triangle classes); stage 4 calls it per photograph and chart |
+//! | 4. merge | [`merge::merge`] | mesh + [`atlas::Atlas`] + [`bind::Binding`] + [`photometric::Gains`] + photos -> [`resample::Resampled`] (photographs resampled and combined by a chart-aware multiresolution spline; texels no photograph's mask covers marked) |
 //! | 5. restore | [`restore::restore_atlas`] ([`restore::inpaint`] for any image) | [`resample::Resampled`] + [`restore::RestoreOptions`] -> the atlas with unseen texels restored (DCT split, diffusion of the low band, synthesis of the high band), [`restore::RestoreReport`] |
 //! | 6. synthesize *(planned)* | `synth::fill_surface(&Mesh, &Atlas, &Texture, ..)` | -> `Texture` (large unseen regions) |
 //! | eval | [`eval::evaluate`] | textured [`mesh::Mesh`] + held-out [`scene::Photo`]s -> [`eval::EvalReport`] (PSNR, SSIM, 1-NCC, completeness) |
@@ -37,12 +37,16 @@ pub mod level;
 pub mod merge;
 pub mod mesh;
 pub mod photometric;
+pub mod photos;
 pub mod pipeline;
+pub mod planar;
 pub mod progress;
 pub mod pyramid;
+pub mod raycast;
 pub mod render;
 pub mod resample;
 pub mod restore;
+pub mod rng;
 pub mod sample;
 pub mod scene;
 pub mod seams;

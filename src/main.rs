@@ -43,17 +43,17 @@ enum Command {
         #[arg(long)]
         lambert: bool,
         /// Ambient fraction for Lambert shading.
-        #[arg(long, default_value_t = 0.35, allow_negative_numbers = true, value_parser = number_in(0.0f32..=1.0))]
+        #[arg(long, default_value_t = scantex::render::RenderOptions::default().ambient, allow_negative_numbers = true, value_parser = number_in(0.0f32..=1.0))]
         ambient: f32,
         /// Direction towards the light (world frame), for Lambert shading.
-        #[arg(long, value_parser = parse_vec3, default_value = "0,0,1")]
-        light: [f64; 3],
+        #[arg(long, default_value_t = Vec3(scantex::render::Lighting::default().light_dir))]
+        light: Vec3,
         /// Exposure gain for every image.
-        #[arg(long, default_value_t = 1.0, allow_negative_numbers = true, value_parser = number_in(0.0f32..=1e6))]
+        #[arg(long, default_value_t = scantex::render::Lighting::default().exposure, allow_negative_numbers = true, value_parser = number_in(0.0f32..=1e6))]
         gain: f32,
         /// White-balance gains R,G,B for every image.
-        #[arg(long, value_parser = parse_vec3, default_value = "1,1,1")]
-        wb: [f64; 3],
+        #[arg(long, default_value_t = Vec3(scantex::render::Lighting::default().white_balance.map(f64::from)))]
+        wb: Vec3,
         /// JSON file of per-image lighting ({"name": {"exposure", "white_balance", "light_dir"}}),
         /// overriding --gain, --wb and --light for the images it names.
         #[arg(long)]
@@ -83,12 +83,17 @@ enum Command {
         out: PathBuf,
         #[command(flatten)]
         atlas: AtlasArgs,
+        /// Keep the UVs the mesh arrived with (unwrapped by another tool: Blender, xatlas,
+        /// Metashape) and texture into that layout, instead of making a new atlas; --size
+        /// still sets the page. UVs must lie in [0, 1].
+        #[arg(long)]
+        keep_uvs: bool,
         /// paper: the paper's binding and resampling as written; robust: per-texel occlusion,
         /// projected-area weights, photo-consistency rejection.
-        #[arg(long, default_value = "robust")]
+        #[arg(long, default_value_t = scantex::bind::BindOptions::default().method)]
         method: scantex::bind::Method,
         /// Atlas file format beside the OBJ: png, png16 or exr (the GLB always embeds PNG).
-        #[arg(long, default_value = "png")]
+        #[arg(long, default_value_t = scantex::pipeline::TextureFormat::default())]
         format: scantex::pipeline::TextureFormat,
         /// Important view direction V for the atlas (from the eye towards the object), x,y,z.
         /// Default: the photographs' mean viewing direction, when they have one.
@@ -99,20 +104,20 @@ enum Command {
         no_view_weight: bool,
         /// Background colour for the background test: auto (estimated per photograph), off,
         /// or r,g,b in [0, 1]. Masks, when the scene has them, decide instead.
-        #[arg(long, default_value = "auto")]
-        background: String,
+        #[arg(long, default_value_t = scantex::bind::BindOptions::default().background)]
+        background: scantex::bind::Background,
         /// RGB distance below which a vertex's sample counts as background.
-        #[arg(long, default_value_t = 0.06, allow_negative_numbers = true, value_parser = number_in(0.0f32..=2.0))]
+        #[arg(long, default_value_t = scantex::bind::BindOptions::default().background_threshold, allow_negative_numbers = true, value_parser = number_in(0.0f32..=2.0))]
         background_threshold: f32,
         /// Robust method: photo-consistency check per vertex, per face, or off.
-        #[arg(long, default_value = "vertex")]
+        #[arg(long, default_value_t = scantex::bind::BindOptions::default().consistency)]
         consistency: scantex::bind::Consistency,
         /// Robust method: views farther than this (RGB distance) from the median of a
         /// vertex's views, and than 3 robust deviations, are dropped.
-        #[arg(long, default_value_t = 0.12, allow_negative_numbers = true, value_parser = number_in(0.0f32..=2.0))]
+        #[arg(long, default_value_t = scantex::bind::BindOptions::default().consistency_threshold, allow_negative_numbers = true, value_parser = number_in(0.0f32..=2.0))]
         consistency_threshold: f32,
         /// Robust method: exponent on the projected-area view weight.
-        #[arg(long, default_value_t = 1.0, allow_negative_numbers = true, value_parser = number_in(scantex::bind::WEIGHT_POWER_RANGE))]
+        #[arg(long, default_value_t = scantex::bind::BindOptions::default().weight_power, allow_negative_numbers = true, value_parser = number_in(scantex::bind::WEIGHT_POWER_RANGE))]
         weight_power: f64,
         /// Per-photograph gains solved from overlaps: off, exposure (gain per channel) or
         /// lighting (also shading by surface normal). Default: lighting, off with
@@ -129,7 +134,7 @@ enum Command {
         no_exposure_solve: bool,
         /// How the photographs seen at a texel combine: none (the best-weighted photograph
         /// alone), average (weighted mean) or multiband (multiresolution spline per chart).
-        #[arg(long, default_value = "multiband")]
+        #[arg(long, default_value_t = scantex::merge::MergeOptions::default().merge)]
         merge: scantex::merge::Merge,
         /// Multiband masks: paper (triangles seen with three valid vertices minus the outer
         /// ring), weighted (view weights) or best-view (view weights, finest band from the
@@ -137,21 +142,21 @@ enum Command {
         #[arg(long)]
         merge_masks: Option<scantex::merge::Masks>,
         /// Multiband: most pyramid levels per chart (a chart gets log2(longer side) - 3).
-        #[arg(long, default_value_t = 2, allow_negative_numbers = true, value_parser = number_in(scantex::merge::LEVELS_RANGE))]
+        #[arg(long, default_value_t = scantex::merge::MergeOptions::default().levels, allow_negative_numbers = true, value_parser = number_in(scantex::merge::LEVELS_RANGE))]
         levels: u32,
         /// Multiband: centre weight a of the 5-tap pyramid kernel (0.4 as the paper; OpenCV
         /// uses 0.375).
-        #[arg(long, default_value_t = 0.4, allow_negative_numbers = true, value_parser = number_in(scantex::merge::KERNEL_A_RANGE))]
+        #[arg(long, default_value_t = scantex::merge::MergeOptions::default().a, allow_negative_numbers = true, value_parser = number_in(scantex::merge::KERNEL_A_RANGE))]
         kernel_a: f32,
         /// Multiband with best-view masks: per face, this many photographs of largest weight
         /// are sampled at every texel; the others at every other texel, for the coarser bands
         /// only (0 = all at every texel; slower, same finest band).
-        #[arg(long, default_value_t = 2, allow_negative_numbers = true, value_parser = number_in(0usize..=1 << 20))]
+        #[arg(long, default_value_t = scantex::merge::MergeOptions::default().full_views, allow_negative_numbers = true, value_parser = number_in(0usize..=1 << 20))]
         full_views: usize,
         /// Multiband with best-view masks: the finest band blends the fully sampled
         /// photographs by their view weights to this power (0 = equally; larger favours the
         /// best view; inf = the best view alone, which leaves a step where it changes).
-        #[arg(long, default_value_t = 2.0, allow_negative_numbers = true, value_parser = number_in(0.0f32..=f32::INFINITY))]
+        #[arg(long, default_value_t = scantex::merge::MergeOptions::default().fine_exponent, allow_negative_numbers = true, value_parser = number_in(0.0f32..=f32::INFINITY))]
         fine_exponent: f32,
         /// Multiband: leave chart borders as blended, without the smooth per-chart correction
         /// that makes both sides of every border agree.
@@ -163,24 +168,24 @@ enum Command {
         no_restore: bool,
         /// Restoration's neighbour search: fast (PCA-reduced kd-tree, re-ranked) or paper
         /// (exact kd-tree on full neighbourhoods; slower).
-        #[arg(long, default_value = "fast")]
+        #[arg(long, default_value_t = scantex::restore::RestoreOptions::default().method)]
         restore_method: scantex::restore::Method,
         /// Largest unseen hole restored, texels; larger regions keep their vertex colours (0 =
         /// no limit; a region of a million texels takes minutes).
-        #[arg(long, default_value_t = 16384, allow_negative_numbers = true, value_parser = number_in(0usize..=usize::MAX))]
+        #[arg(long, default_value_t = scantex::pipeline::Restoration::MAX_HOLE, allow_negative_numbers = true, value_parser = number_in(0usize..=usize::MAX))]
         max_hole: usize,
         /// Seed of restoration's random choices (the same seed gives the same bytes).
-        #[arg(long, default_value_t = 0, allow_negative_numbers = true, value_parser = number_in(0u64..=u64::MAX))]
+        #[arg(long, default_value_t = scantex::restore::RestoreOptions::default().seed, allow_negative_numbers = true, value_parser = number_in(0u64..=u64::MAX))]
         seed: u64,
         /// Longest side of the per-photograph depth map, pixels.
-        #[arg(long, default_value_t = 2048, allow_negative_numbers = true, value_parser = number_in(scantex::bind::DEPTH_RESOLUTION_RANGE))]
+        #[arg(long, default_value_t = scantex::bind::BindOptions::default().depth_resolution, allow_negative_numbers = true, value_parser = number_in(scantex::bind::DEPTH_RESOLUTION_RANGE))]
         depth_resolution: u32,
         /// Robust method: most photographs sampled per face, the heaviest at its vertices; 0 =
         /// all.
-        #[arg(long, default_value_t = 12, allow_negative_numbers = true, value_parser = number_in(0usize..=1 << 20))]
+        #[arg(long, default_value_t = scantex::resample::ResampleOptions::default().max_views, allow_negative_numbers = true, value_parser = number_in(0usize..=1 << 20))]
         max_views: usize,
         /// Gutter texels filled by extending chart colours.
-        #[arg(long, default_value_t = 8, allow_negative_numbers = true, value_parser = number_in(0u32..=1024))]
+        #[arg(long, default_value_t = scantex::resample::ResampleOptions::default().gutter_fill, allow_negative_numbers = true, value_parser = number_in(0u32..=1024))]
         gutter_fill: u32,
         /// Write the classification map, coverage map and atlas layout here.
         #[arg(long)]
@@ -202,26 +207,26 @@ enum Command {
         out: PathBuf,
         /// DCT subbands in the low band: auto (the paper's autocorrelation rule) or a number
         /// (0 = pure synthesis, the longer side = pure diffusion).
-        #[arg(long, default_value = "auto")]
+        #[arg(long, default_value_t = scantex::restore::RestoreOptions::default().kappa)]
         kappa: scantex::restore::Kappa,
         /// Levels of the high-band pyramid (1 to 8).
-        #[arg(long, default_value_t = 3, allow_negative_numbers = true, value_parser = number_in(scantex::restore::LEVELS_RANGE))]
+        #[arg(long, default_value_t = scantex::restore::RestoreOptions::default().levels, allow_negative_numbers = true, value_parser = number_in(scantex::restore::LEVELS_RANGE))]
         levels: usize,
         /// Seed for the choice of source pixels (the same seed gives the same bytes).
-        #[arg(long, default_value_t = 0, allow_negative_numbers = true, value_parser = number_in(0u64..=u64::MAX))]
+        #[arg(long, default_value_t = scantex::restore::RestoreOptions::default().seed, allow_negative_numbers = true, value_parser = number_in(0u64..=u64::MAX))]
         seed: u64,
         /// Neighbour search: fast (PCA-reduced kd-tree with exact re-ranking) or paper (exact
         /// kd-tree on full neighbourhoods; slower).
-        #[arg(long, default_value = "fast")]
+        #[arg(long, default_value_t = scantex::restore::RestoreOptions::default().method)]
         method: scantex::restore::Method,
         /// Hertzmann's coherence parameter (0 = always take the search's match).
-        #[arg(long, default_value_t = 10.0, allow_negative_numbers = true, value_parser = number_in(0.0f32..=1e6))]
+        #[arg(long, default_value_t = scantex::restore::RestoreOptions::default().coherence, allow_negative_numbers = true, value_parser = number_in(0.0f32..=1e6))]
         coherence: f32,
         /// Fast method: source pixels per kernel orientation and window.
-        #[arg(long, default_value_t = 16384, allow_negative_numbers = true, value_parser = number_in(1usize..=1 << 30))]
+        #[arg(long, default_value_t = scantex::restore::RestoreOptions::default().max_sources, allow_negative_numbers = true, value_parser = number_in(1usize..=1 << 30))]
         max_sources: usize,
         /// Known pixels around a hole that may serve as its source, pixels.
-        #[arg(long, default_value_t = 64, allow_negative_numbers = true, value_parser = number_in(1usize..=1 << 16))]
+        #[arg(long, default_value_t = scantex::restore::RestoreOptions::default().margin, allow_negative_numbers = true, value_parser = number_in(1usize..=1 << 16))]
         margin: usize,
         /// Synthesise the high band as it is, without dividing out its local amplitude (the
         /// paper's way; detail fades under intensity ramps).
@@ -229,7 +234,7 @@ enum Command {
         no_contrast_normalisation: bool,
         /// How much of the hole's local mean comes from diffusion instead of synthesis, 0
         /// (the paper) to 1 (closest to the truth at coarse scales, flatter to the eye).
-        #[arg(long, default_value_t = 0.6, allow_negative_numbers = true, value_parser = number_in(0.0f32..=1.0))]
+        #[arg(long, default_value_t = scantex::restore::RestoreOptions::default().mean_from_diffusion, allow_negative_numbers = true, value_parser = number_in(0.0f32..=1.0))]
         mean_from_diffusion: f32,
         /// Keep each hole's synthesised detail as it comes, without matching its energy to
         /// the surroundings' (the paper's way; joins between copied pieces add edges).
@@ -270,7 +275,7 @@ enum Command {
         /// Mesh with texture coordinates (.obj, .ply, .gltf, .glb).
         mesh: PathBuf,
         /// Texture size (texels per side, per UDIM page) for utilisation and overlaps.
-        #[arg(long, default_value_t = 4096, allow_negative_numbers = true, value_parser = number_in(scantex::atlas::SIZE_RANGE))]
+        #[arg(long, default_value_t = scantex::atlas::AtlasOptions::default().pack.size, allow_negative_numbers = true, value_parser = number_in(scantex::atlas::SIZE_RANGE))]
         size: u32,
     },
     /// Generate a sample scene with known true colours.
@@ -283,16 +288,16 @@ enum Command {
         #[arg(long)]
         from_mesh: Option<PathBuf>,
         /// World up axis for camera placement: x, y or z.
-        #[arg(long, default_value = "z")]
-        up: String,
+        #[arg(long, default_value_t = Axis::of(scantex::sample::SampleOptions::default().up))]
+        up: Axis,
         /// Number of photographs.
-        #[arg(long, default_value_t = 16, allow_negative_numbers = true, value_parser = number_in(1usize..=100_000))]
+        #[arg(long, default_value_t = scantex::sample::SampleOptions::default().photos, allow_negative_numbers = true, value_parser = number_in(1usize..=100_000))]
         photos: usize,
         /// Random seed.
-        #[arg(long, default_value_t = 1, allow_negative_numbers = true, value_parser = number_in(0u64..=u64::MAX))]
+        #[arg(long, default_value_t = scantex::sample::SampleOptions::default().seed, allow_negative_numbers = true, value_parser = number_in(0u64..=u64::MAX))]
         seed: u64,
         /// Largest per-photograph exposure and white-balance deviation (0.25 = +-25%).
-        #[arg(long, default_value_t = 0.25, allow_negative_numbers = true, value_parser = number_in(scantex::sample::GAIN_RANGE_LIMITS))]
+        #[arg(long, default_value_t = scantex::sample::SampleOptions::default().gain_range, allow_negative_numbers = true, value_parser = number_in(scantex::sample::GAIN_RANGE_LIMITS))]
         gain_range: f64,
         /// Light every photograph from the same direction (default: a random one each).
         #[arg(long)]
@@ -327,6 +332,61 @@ where
     }
 }
 
+/// Three numbers `x,y,z` on the command line (shown as such in `--help` defaults).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Vec3([f64; 3]);
+
+impl std::fmt::Display for Vec3 {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let [x, y, z] = self.0;
+        write!(f, "{x},{y},{z}")
+    }
+}
+
+impl std::str::FromStr for Vec3 {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        parse_vec3(s).map(Vec3)
+    }
+}
+
+/// A world axis: x, y or z.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Axis {
+    X,
+    Y,
+    Z,
+}
+
+impl Axis {
+    /// The axis `v` points along (z for anything else).
+    fn of(v: nalgebra::Vector3<f64>) -> Axis {
+        match (v.x != 0.0, v.y != 0.0) {
+            (true, _) => Axis::X,
+            (_, true) => Axis::Y,
+            _ => Axis::Z,
+        }
+    }
+
+    fn vector(self) -> nalgebra::Vector3<f64> {
+        match self {
+            Axis::X => nalgebra::Vector3::x(),
+            Axis::Y => nalgebra::Vector3::y(),
+            Axis::Z => nalgebra::Vector3::z(),
+        }
+    }
+}
+
+impl std::fmt::Display for Axis {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Axis::X => "x",
+            Axis::Y => "y",
+            Axis::Z => "z",
+        })
+    }
+}
+
 fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
     let v: Vec<f64> = s
         .split(',')
@@ -346,16 +406,16 @@ fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
 #[derive(Args)]
 struct AtlasArgs {
     /// Atlas size in texels.
-    #[arg(long, default_value_t = 4096, allow_negative_numbers = true, value_parser = number_in(scantex::atlas::SIZE_RANGE))]
+    #[arg(long, default_value_t = scantex::atlas::AtlasOptions::default().pack.size, allow_negative_numbers = true, value_parser = number_in(scantex::atlas::SIZE_RANGE))]
     size: u32,
     /// Gutter between charts, in texels.
-    #[arg(long, default_value_t = 4, allow_negative_numbers = true, value_parser = number_in(0u32..=16384))]
+    #[arg(long, default_value_t = scantex::atlas::AtlasOptions::default().pack.gutter, allow_negative_numbers = true, value_parser = number_in(0u32..=16384))]
     gutter: u32,
     /// k in the visual importance w = 1 / (<N, V> + k); more than 1.
-    #[arg(long, default_value_t = 1.5, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = scantex::atlas::AtlasOptions::default().flatten.stretch.k, allow_negative_numbers = true)]
     k: f64,
     /// Smallest height/base ratio of a UV triangle (shape barrier), in [0, 0.5).
-    #[arg(long, default_value_t = 0.05, allow_negative_numbers = true)]
+    #[arg(long, default_value_t = scantex::atlas::AtlasOptions::default().flatten.stretch.alpha, allow_negative_numbers = true)]
     alpha: f64,
 }
 
@@ -455,8 +515,8 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
                 ambient,
                 lighting: Lighting {
                     exposure: gain,
-                    white_balance: wb.map(|v| v as f32),
-                    light_dir: light,
+                    white_balance: wb.0.map(|v| v as f32),
+                    light_dir: light.0,
                 },
                 ..Default::default()
             };
@@ -501,6 +561,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             scene,
             out,
             atlas,
+            keep_uvs,
             method,
             format,
             view_dir,
@@ -531,27 +592,25 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             quiet,
         } => {
             use scantex::pipeline::{TextureOptions, ViewWeight};
-            let mut opts = TextureOptions::default();
+            let mut opts = TextureOptions::for_method(method);
             atlas.apply(&mut opts.atlas);
+            opts.keep_uvs = keep_uvs;
             opts.view_weight = match (view_dir, no_view_weight) {
                 (_, true) => ViewWeight::Off,
                 (Some(d), false) => ViewWeight::Direction(d),
                 (None, false) => ViewWeight::MeanPhotoDirection,
             };
-            opts.bind.method = method;
-            opts.photometric.model = gains.unwrap_or(match method {
-                scantex::bind::Method::Paper => scantex::photometric::GainModel::Off,
-                scantex::bind::Method::Robust => scantex::photometric::GainModel::Lighting,
-            });
+            if let Some(g) = gains {
+                opts.photometric.model = g;
+            }
             if no_exposure_solve {
                 opts.photometric.model = scantex::photometric::GainModel::Off;
             }
             opts.photometric.delight = !no_delight;
             opts.merge.merge = merge;
-            opts.merge.masks = merge_masks.unwrap_or(match method {
-                scantex::bind::Method::Paper => scantex::merge::Masks::Paper,
-                scantex::bind::Method::Robust => scantex::merge::Masks::BestView,
-            });
+            if let Some(m) = merge_masks {
+                opts.merge.masks = m;
+            }
             opts.merge.levels = levels;
             opts.merge.a = kernel_a;
             opts.merge.full_views = full_views;
@@ -569,15 +628,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
                     max_hole,
                 }
             };
-            opts.bind.background = match background.as_str() {
-                "auto" => scantex::bind::Background::Estimate,
-                "off" => scantex::bind::Background::Off,
-                rgb => scantex::bind::Background::Color(
-                    parse_vec3(rgb)
-                        .map_err(scantex::Error::Invalid)?
-                        .map(|v| v as f32),
-                ),
-            };
+            opts.bind.background = background;
             opts.bind.background_threshold = background_threshold;
             opts.bind.consistency = consistency;
             opts.bind.consistency_threshold = consistency_threshold;
@@ -668,18 +719,8 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             gain_range,
             fixed_light,
         } => {
-            let up = match up.as_str() {
-                "x" => nalgebra::Vector3::x(),
-                "y" => nalgebra::Vector3::y(),
-                "z" => nalgebra::Vector3::z(),
-                other => {
-                    return Err(scantex::Error::Invalid(format!(
-                        "--up must be x, y or z, not '{other}'"
-                    )))
-                }
-            };
             let opts = scantex::sample::SampleOptions {
-                up,
+                up: up.vector(),
                 photos,
                 seed,
                 gain_range,

@@ -14,15 +14,18 @@
 //! the charts' band accumulators (about 18 bytes per texel of chart rectangles with best-view
 //! masks, 28 with the others), whatever the number of photographs.
 
-use crate::bind::{for_each_photo_with, Binding};
+use crate::atlas::{Atlas, ChartRect};
+use crate::bind::Binding;
 use crate::error::{Error, Result};
 use crate::level;
 use crate::mesh::Mesh;
+use crate::photometric::Gains;
+use crate::photos::for_each_photo_with;
 use crate::progress::Progress;
 use crate::pyramid::{self, Plane};
 use crate::resample::{
-    check_photo_count, resample, PhotoSampler, Prepared, ResampleOptions, Resampled, TexelSource,
-    NO_PHOTO,
+    check_photo_count, resample_with, PhotoSampler, Prepared, ResampleOptions, Resampled,
+    TexelSource, NO_PHOTO,
 };
 use crate::scene::Photo;
 use half::f16;
@@ -41,6 +44,17 @@ pub enum Merge {
     Average,
     /// Multiresolution spline (default).
     Multiband,
+}
+
+impl std::fmt::Display for Merge {
+    /// The name `from_str` reads.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Merge::None => "none",
+            Merge::Average => "average",
+            Merge::Multiband => "multiband",
+        })
+    }
 }
 
 impl std::str::FromStr for Merge {
@@ -72,6 +86,17 @@ pub enum Masks {
     /// weights raised to [`MergeOptions::fine_exponent`]: coarse bands blend, fine detail is
     /// never averaged across many slightly misregistered photographs (default).
     BestView,
+}
+
+impl std::fmt::Display for Masks {
+    /// The name `from_str` reads.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Masks::Paper => "paper",
+            Masks::Weighted => "weighted",
+            Masks::BestView => "best-view",
+        })
+    }
 }
 
 impl std::str::FromStr for Masks {
@@ -165,9 +190,10 @@ impl MergeOptions {
     }
 }
 
-/// One chart's image: its faces and bounding rectangle in the atlas.
-struct Chart {
-    faces: Vec<u32>,
+/// One chart's image: its faces and bounding rectangle in the atlas, and the pyramid levels
+/// it is merged with.
+struct Chart<'a> {
+    faces: &'a [u32],
     x0: usize,
     y0: usize,
     w: usize,
@@ -175,66 +201,20 @@ struct Chart {
     levels: usize,
 }
 
-/// Charts as UV islands (faces joined through shared texture-coordinate indices), so that
-/// atlases from other tools work too. Also returns each face's chart (`u32::MAX` off the page).
-fn find_charts(
-    face_rect: impl Fn(usize) -> Option<((usize, usize), (usize, usize))>,
-    mesh: &Mesh,
-    max_levels: u32,
-) -> (Vec<Chart>, Vec<u32>) {
-    let uv = mesh.uv.as_ref().expect("the caller checked the UVs");
-    let mut parent: Vec<u32> = (0..uv.coords.len() as u32).collect();
-    fn find(p: &mut [u32], mut i: u32) -> u32 {
-        while p[i as usize] != i {
-            p[i as usize] = p[p[i as usize] as usize];
-            i = p[i as usize];
-        }
-        i
-    }
-    for c in &uv.faces {
-        for k in 1..3 {
-            let (a, b) = (find(&mut parent, c[0]), find(&mut parent, c[k]));
-            if a != b {
-                parent[a.max(b) as usize] = a.min(b);
-            }
+impl<'a> Chart<'a> {
+    /// The chart's image for `r`, with as many levels as its larger side allows (down to about
+    /// 8 texels), at most `max_levels`.
+    fn new(r: &'a ChartRect, max_levels: u32) -> Self {
+        let side = r.w.max(r.h).max(1) as f64;
+        Chart {
+            faces: &r.faces,
+            x0: r.x0,
+            y0: r.y0,
+            w: r.w,
+            h: r.h,
+            levels: (side.log2().floor() as i64 - 3).clamp(0, max_levels as i64) as usize,
         }
     }
-    let mut index_of_root = vec![u32::MAX; uv.coords.len()];
-    let mut charts: Vec<Chart> = Vec::new();
-    let mut face_chart = vec![u32::MAX; mesh.num_faces()];
-    for (f, slot) in face_chart.iter_mut().enumerate() {
-        let Some(((r0, r1), (c0, c1))) = face_rect(f) else {
-            continue;
-        };
-        let root = find(&mut parent, uv.faces[f][0]) as usize;
-        if index_of_root[root] == u32::MAX {
-            index_of_root[root] = charts.len() as u32;
-            charts.push(Chart {
-                faces: Vec::new(),
-                x0: c0,
-                y0: r0,
-                w: c1 + 1,
-                h: r1 + 1,
-                levels: 0,
-            });
-        }
-        let ci = index_of_root[root];
-        *slot = ci;
-        let ch = &mut charts[ci as usize];
-        ch.faces.push(f as u32);
-        // w and h hold the exclusive right and bottom edges until the end.
-        ch.x0 = ch.x0.min(c0);
-        ch.y0 = ch.y0.min(r0);
-        ch.w = ch.w.max(c1 + 1);
-        ch.h = ch.h.max(r1 + 1);
-    }
-    for ch in &mut charts {
-        ch.w -= ch.x0;
-        ch.h -= ch.y0;
-        let side = ch.w.max(ch.h).max(1) as f64;
-        ch.levels = (side.log2().floor() as i64 - 3).clamp(0, max_levels as i64) as usize;
-    }
-    (charts, face_chart)
 }
 
 /// Per vertex, the photographs valid at it and at all its neighbours (sorted): a face is in a
@@ -242,14 +222,7 @@ fn find_charts(
 /// of triangles touches a vertex with an invalid neighbour).
 fn ring_valid(mesh: &Mesh, b: &Binding) -> Vec<Vec<u32>> {
     let nv = mesh.num_vertices();
-    let mut nbr: Vec<Vec<u32>> = vec![Vec::new(); nv];
-    for f in &mesh.faces {
-        for k in 0..3 {
-            let (a, c) = (f[k].0, f[(k + 1) % 3].0);
-            nbr[a as usize].push(c);
-            nbr[c as usize].push(a);
-        }
-    }
+    let nbr = crate::mesh::topology::one_rings(mesh);
     (0..nv)
         .into_par_iter()
         .map(|v| {
@@ -861,45 +834,49 @@ impl ChartAcc {
     }
 }
 
-/// Stage 4: the photographs resampled into a `size` x `size` atlas and merged as `mopts`
-/// says. `normals` are unit vertex normals of `mesh`; the binding carries the gains.
+/// Stage 4: the photographs resampled into `atlas` and merged as `mopts` says. `normals` are
+/// unit vertex normals of `mesh`; the binding carries the gains.
 #[allow(clippy::too_many_arguments)]
 pub fn merge(
     mesh: &Mesh,
     normals: &[Vector3<f64>],
+    atlas: &Atlas,
     binding: &Binding,
+    gains: &Gains,
     photos: &[Photo],
-    size: u32,
     ropts: &ResampleOptions,
     mopts: &MergeOptions,
     progress: &dyn Progress,
 ) -> Result<Resampled> {
     mopts.validate()?;
+    let prep = Prepared::new(mesh, atlas, normals, binding, gains, ropts)?;
     match mopts.merge {
-        Merge::None => resample(mesh, normals, binding, photos, size, ropts, true, progress),
-        Merge::Average => resample(mesh, normals, binding, photos, size, ropts, false, progress),
-        Merge::Multiband => multiband(mesh, normals, binding, photos, size, ropts, mopts, progress),
+        Merge::None => resample_with(&prep, photos, ropts, true, progress),
+        Merge::Average => resample_with(&prep, photos, ropts, false, progress),
+        Merge::Multiband => multiband(&prep, photos, ropts, mopts, progress),
     }
 }
 
 #[allow(clippy::too_many_arguments)]
 fn multiband(
-    mesh: &Mesh,
-    normals: &[Vector3<f64>],
-    binding: &Binding,
+    prep: &Prepared,
     photos: &[Photo],
-    size: u32,
     ropts: &ResampleOptions,
     mopts: &MergeOptions,
     progress: &dyn Progress,
 ) -> Result<Resampled> {
-    let prep = Prepared::new(mesh, normals, binding, size, ropts)?;
+    let (mesh, atlas, binding) = (prep.mesh, prep.atlas, prep.binding);
     check_photo_count(photos.len())?;
     let n = prep.size();
     let a = mopts.a;
     let paper = mopts.masks == Masks::Paper;
     let winner_mode = mopts.masks == Masks::BestView;
-    let (charts, face_chart) = find_charts(|f| prep.face_rect(f), mesh, mopts.levels);
+    let charts: Vec<Chart> = atlas
+        .charts
+        .iter()
+        .map(|r| Chart::new(r, mopts.levels))
+        .collect();
+    let face_chart = &atlas.face_chart;
     let ring = paper.then(|| ring_valid(mesh, binding));
     // A face's reference weight: its best photograph's mean vertex weight, so relative masks
     // are about 1 for the best view whatever the units of the weights. And, with best-view
@@ -957,7 +934,7 @@ fn multiband(
             .zip(charts.par_iter())
             .for_each(|(acc, ch)| {
                 add_photo(
-                    &prep,
+                    prep,
                     &ph,
                     ch,
                     acc,
@@ -1013,7 +990,7 @@ fn multiband(
             .par_iter_mut()
             .map(|(ci, acc)| {
                 let ch = &charts[*ci];
-                add_complement(&prep, ch, *ci as u32, &face_chart, acc, a, winner_mode);
+                add_complement(prep, ch, *ci as u32, face_chart, acc, a, winner_mode);
                 acc.collapse(a, winner_mode)
             })
             .collect();
@@ -1026,17 +1003,7 @@ fn multiband(
                 &mut views[..],
                 &mut best[..],
             );
-            write_chart(
-                &prep,
-                ch,
-                ci as u32,
-                &face_chart,
-                &img,
-                expand,
-                &acc,
-                a,
-                out,
-            );
+            write_chart(prep, ch, ci as u32, face_chart, &img, expand, &acc, a, out);
         }
         crate::io::release_freed_memory();
     }
@@ -1044,8 +1011,7 @@ fn multiband(
     let t = std::time::Instant::now();
     let levelling = mopts.level_seams.then(|| {
         let owner = |i: usize| prep.owner(i);
-        let mut st =
-            level::level_seams(mesh, n, &owner, &face_chart, &mut color, level::SMOOTHNESS);
+        let mut st = level::level_seams(mesh, n, &owner, face_chart, &mut color, level::SMOOTHNESS);
         st.seconds = t.elapsed().as_secs_f64();
         st
     });
@@ -1157,18 +1123,24 @@ fn blended_rows(
 
 /// Levels chart borders again, on `res`'s current colours: restoration fills texels on both
 /// sides of chart borders independently, and the steps it leaves there are what levelling
-/// removes (`docs/decisions.md`). `mesh` is the one `res` was merged for; the gutter is
-/// filled again, `gutter_fill` texels deep.
-pub fn relevel(mesh: &Mesh, res: &mut Resampled, gutter_fill: u32) -> Result<level::LevelStats> {
+/// removes (`docs/decisions.md`). `mesh` and `atlas` are the ones `res` was merged for; the
+/// gutter is filled again, `gutter_fill` texels deep.
+pub fn relevel(
+    mesh: &Mesh,
+    atlas: &Atlas,
+    res: &mut Resampled,
+    gutter_fill: u32,
+) -> Result<level::LevelStats> {
     let t = std::time::Instant::now();
     let n = res.color.width() as usize;
-    let (owner, rects) = crate::resample::texel_owners(mesh, n as u32)?;
-    let (_, face_chart) = find_charts(|f| rects[f], mesh, 0);
-    drop(rects);
-    let own = |i: usize| (owner[i] != u32::MAX).then_some(owner[i]);
+    if n != atlas.size as usize {
+        return Err(Error::Invalid(
+            "internal: levelling an atlas of another size".into(),
+        ));
+    }
+    let own = |i: usize| atlas.owner(i);
     let color: &mut [f32] = &mut res.color;
-    let mut st = level::level_seams(mesh, n, &own, &face_chart, color, level::SMOOTHNESS);
-    drop(owner);
+    let mut st = level::level_seams(mesh, n, &own, &atlas.face_chart, color, level::SMOOTHNESS);
     crate::resample::refill_gutter(res, gutter_fill);
     st.seconds = t.elapsed().as_secs_f64();
     res.stats.seam_levelling_after_restore = Some(st);
@@ -1198,7 +1170,7 @@ fn add_photo(
     // by the coarsest level's reach (beyond it the mask is zero at every level) and aligned to
     // that level's grid.
     let (mut bx0, mut by0, mut bx1, mut by1) = (usize::MAX, usize::MAX, 0, 0);
-    for &f in &ch.faces {
+    for &f in ch.faces {
         if ph.samples(f) {
             let ((r0, r1), (c0, c1)) = prep.face_rect(f as usize).expect("chart faces rasterise");
             (bx0, by0) = (bx0.min(c0 - ch.x0), by0.min(r0 - ch.y0));
@@ -1225,7 +1197,7 @@ fn add_photo(
     };
     let mut any_mask = false;
     let n = prep.size();
-    for &f in &ch.faces {
+    for &f in ch.faces {
         if !ph.samples(f) {
             continue;
         }
@@ -1434,9 +1406,9 @@ mod tests {
         (0..w * h).map(|_| [rnd(), rnd(), rnd()]).collect()
     }
 
-    fn chart(w: usize, h: usize, levels: usize) -> Chart {
+    fn chart(w: usize, h: usize, levels: usize) -> Chart<'static> {
         Chart {
-            faces: Vec::new(),
+            faces: &[],
             x0: 0,
             y0: 0,
             w,

@@ -40,6 +40,17 @@ pub enum GainModel {
     Lighting,
 }
 
+impl std::fmt::Display for GainModel {
+    /// The name `from_str` reads.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            GainModel::Off => "off",
+            GainModel::Exposure => "exposure",
+            GainModel::Lighting => "lighting",
+        })
+    }
+}
+
 impl FromStr for GainModel {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
@@ -217,19 +228,19 @@ impl Gains {
     }
 }
 
-/// Solves the gains of `binding`'s photographs ([`solve`]), corrects its samples by them and
-/// records them in [`Binding::gains`] for resampling.
+/// Solves the gains of `binding`'s photographs ([`solve`]) and corrects its samples by them;
+/// returns the corrected binding and the gains, which resampling applies to texels the same
+/// way.
 pub fn normalise(
     mut binding: Binding,
     normals: &[Vector3<f64>],
     opts: &PhotometricOptions,
-) -> Binding {
+) -> (Binding, Gains) {
     let gains = solve(&binding, normals, opts);
     if !gains.is_identity() {
         gains.apply(&mut binding, normals);
     }
-    binding.gains = gains;
-    binding
+    (binding, gains)
 }
 
 /// A sample's share in the fit.
@@ -544,7 +555,7 @@ mod tests {
                 / n as f64
         };
         let before = spread(&binding);
-        let exp = normalise(
+        let (exp, _) = normalise(
             binding.clone(),
             &normals,
             &PhotometricOptions {
@@ -552,8 +563,7 @@ mod tests {
                 ..Default::default()
             },
         );
-        let lit = normalise(binding.clone(), &normals, &PhotometricOptions::default());
-        let g = &lit.gains;
+        let (lit, g) = normalise(binding.clone(), &normals, &PhotometricOptions::default());
         assert!(g.rms_after < 0.25 * g.rms_before, "{g:?}");
         let (e, l) = (spread(&exp), spread(&lit));
         assert!(before > 2.0, "the test scene must disagree: {before}");
@@ -566,7 +576,7 @@ mod tests {
         );
         // Delighting: the corrected colour over the true albedo is nearly constant over the
         // sphere, where without it the average light's shading remains.
-        let kept = normalise(
+        let (kept, _) = normalise(
             binding.clone(),
             &normals,
             &PhotometricOptions {

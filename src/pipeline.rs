@@ -48,6 +48,17 @@ pub enum TextureFormat {
     Exr,
 }
 
+impl std::fmt::Display for TextureFormat {
+    /// The name `from_str` reads.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            TextureFormat::Png => "png",
+            TextureFormat::Png16 => "png16",
+            TextureFormat::Exr => "exr",
+        })
+    }
+}
+
 impl std::str::FromStr for TextureFormat {
     type Err = Error;
     fn from_str(s: &str) -> Result<Self> {
@@ -74,16 +85,21 @@ pub enum Restoration {
     Synthesis {
         /// The restoration itself.
         options: RestoreOptions,
-        /// Largest hole restored, texels. Default: 16384 (a 128 x 128 region).
+        /// Largest hole restored, texels. Default: [`Restoration::MAX_HOLE`].
         max_hole: usize,
     },
+}
+
+impl Restoration {
+    /// The default largest hole restored: 16384 texels (a 128 x 128 region).
+    pub const MAX_HOLE: usize = 16384;
 }
 
 impl Default for Restoration {
     fn default() -> Self {
         Restoration::Synthesis {
             options: RestoreOptions::default(),
-            max_hole: 16384,
+            max_hole: Restoration::MAX_HOLE,
         }
     }
 }
@@ -110,6 +126,9 @@ pub struct TextureOptions {
     pub restoration: Restoration,
     /// Atlas file format. Default: PNG.
     pub format: TextureFormat,
+    /// Keep the UVs the mesh arrived with (unwrapped by another tool) instead of making an
+    /// atlas: the texture is resampled into that layout, page 0 only. Default: false.
+    pub keep_uvs: bool,
 }
 
 impl TextureOptions {
@@ -120,6 +139,15 @@ impl TextureOptions {
         o.photometric.model = GainModel::Off;
         o.merge.masks = Masks::Paper;
         o
+    }
+
+    /// The defaults of a binding method: [`TextureOptions::paper`] for the paper's,
+    /// [`TextureOptions::default`] for the robust one.
+    pub fn for_method(method: bind::Method) -> TextureOptions {
+        match method {
+            bind::Method::Paper => TextureOptions::paper(),
+            bind::Method::Robust => TextureOptions::default(),
+        }
     }
 
     /// Checks every stage's options.
@@ -255,14 +283,21 @@ pub fn texture(
     // The atlas only adds UVs to the welded mesh, and binding needs no UVs: the two run side
     // by side, so binding's photo decoding fills the cores the packer leaves idle.
     let mut welded = mesh.clone();
-    welded.uv = None;
     welded.texture = None;
+    if !opts.keep_uvs {
+        welded.uv = None;
+    }
     welded.weld();
     let normals = welded.vertex_normals();
     let (atlas_done, bind_done) = rayon::join(
         || {
             let mut t = Instant::now();
-            atlas::parameterize(&welded, &atlas_opts).map(|r| (r, stage_since("atlas", &mut t)))
+            let built = if opts.keep_uvs {
+                atlas::keep(welded.clone(), opts.atlas.pack.size)
+            } else {
+                atlas::build(welded.clone(), &atlas_opts)
+            };
+            built.map(|r| (r, stage_since("atlas", &mut t)))
         },
         || {
             let mut t = Instant::now();
@@ -270,14 +305,8 @@ pub fn texture(
                 .map(|b| (b, stage_since("bind", &mut t)))
         },
     );
-    let ((m, atlas_report), atlas_stage) = atlas_done?;
+    let ((m, atlas, atlas_report), atlas_stage) = atlas_done?;
     let (binding, bind_stage) = bind_done?;
-    // parameterize welds its input again, which on a welded mesh changes nothing.
-    if m.positions != welded.positions || m.faces != welded.faces {
-        return Err(Error::Invalid(
-            "internal: the atlas changed the welded mesh's vertices".into(),
-        ));
-    }
     drop(welded);
     stages.extend([atlas_stage, bind_stage]);
     let mut t = Instant::now();
@@ -291,6 +320,15 @@ pub fn texture(
         )));
     }
     let mut warnings = Vec::new();
+    if opts.keep_uvs && atlas_report.overlapping_texels > 0 {
+        let w = format!(
+            "the mesh's own UVs overlap ({} texels covered by more than one chart): the \
+             overlapping parts of the surface share those texels' colours",
+            atlas_report.overlapping_texels
+        );
+        progress.warn(&w);
+        warnings.push(w);
+    }
     for b in binding.per_photo.iter().filter(|b| b.vertices == 0) {
         let w = format!(
             "photograph {} sees no vertex of the mesh and contributes nothing (check its pose \
@@ -301,15 +339,16 @@ pub fn texture(
         warnings.push(w);
     }
     progress.start("gains", 1);
-    let binding = photometric::normalise(binding, &normals, &opts.photometric);
+    let (binding, gains) = photometric::normalise(binding, &normals, &opts.photometric);
     progress.finish();
     stages.push(stage_since("gains", &mut t));
     let resampled = merge::merge(
         &m,
         &normals,
+        &atlas,
         &binding,
+        &gains,
         photos,
-        opts.atlas.pack.size,
         &opts.resample,
         &opts.merge,
         progress,
@@ -328,7 +367,7 @@ pub fn texture(
             )?;
             // Restored texels meet at chart borders without having seen each other.
             if opts.merge.merge == merge::Merge::Multiband && opts.merge.level_seams {
-                merge::relevel(&m, &mut resampled, opts.resample.gutter_fill)?;
+                merge::relevel(&m, &atlas, &mut resampled, opts.resample.gutter_fill)?;
             }
             progress.finish();
             stages.push(stage_since("restore", &mut t));
@@ -360,7 +399,7 @@ pub fn texture(
         vertices_unbound: m.num_vertices() - binding.bound_vertices(),
         rejections: binding.rejections,
         per_photo: binding.per_photo.clone(),
-        gains: binding.gains.clone(),
+        gains,
         resample: resampled.stats.clone(),
         seams,
         restore,

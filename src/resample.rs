@@ -14,16 +14,20 @@
 //! The atlas is processed in bands of rows in parallel; photographs one at a time, so memory is
 //! the atlas's accumulators plus two decoded photographs.
 
-use crate::bind::{consistent, depth_tolerance, for_each_photo_with, Binding, Consistency, Method};
+use crate::atlas::texels::BAND;
+use crate::atlas::Atlas;
+use crate::bind::{consistent, depth_tolerance, Binding, Consistency, Method};
 use crate::camera::PosedCamera;
 use crate::depth::{focal_px, DepthMap};
 use crate::error::{Error, Result};
 use crate::io::image::{PhotoPixels, Values};
-use crate::mesh::{FaceId, Mesh};
+use crate::mesh::Mesh;
+use crate::photometric::Gains;
+use crate::photos::for_each_photo_with;
 use crate::progress::Progress;
 use crate::scene::Photo;
 use image::{GrayImage, Rgb32FImage, RgbImage};
-use nalgebra::{Point2, Point3, Vector2, Vector3};
+use nalgebra::{Point2, Point3, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -280,19 +284,7 @@ pub fn fill_vertex_colors(
     colors: &[Option<[f32; 3]>],
 ) -> (Vec<[f32; 3]>, [u64; 5], u64) {
     let nv = mesh.num_vertices();
-    // One-ring neighbours, deduplicated.
-    let mut nbr: Vec<Vec<u32>> = vec![Vec::new(); nv];
-    for f in &mesh.faces {
-        for k in 0..3 {
-            let (a, b) = (f[k].0, f[(k + 1) % 3].0);
-            nbr[a as usize].push(b);
-            nbr[b as usize].push(a);
-        }
-    }
-    for n in &mut nbr {
-        n.sort_unstable();
-        n.dedup();
-    }
+    let nbr = crate::mesh::topology::one_rings(mesh);
     let mut col: Vec<Option<[f32; 3]>> = colors.to_vec();
     let mut per_round = [0u64; 5];
     for (round, p) in [0.8, 0.6, 0.4, 0.2, 0.0].into_iter().enumerate() {
@@ -348,145 +340,6 @@ pub fn fill_vertex_colors(
         per_round,
         unreachable,
     )
-}
-
-/// Rows of the atlas processed together by one thread.
-const BAND: usize = 16;
-
-/// A face's triangle in texel coordinates and what the per-texel work needs of it.
-struct FaceRaster {
-    /// Corners (x right, y down), texel centres at +0.5.
-    t: [Vector2<f64>; 3],
-    /// Twice the signed area.
-    area2: f64,
-    /// Texel rows spanned (inclusive), conservatively.
-    rows: (usize, usize),
-    /// Texel columns spanned (inclusive), conservatively.
-    cols: (usize, usize),
-    /// 3D length of one texel on this face.
-    texel_len: f64,
-}
-
-impl FaceRaster {
-    /// Barycentrics of the texel centre (x, y), unclamped.
-    fn bary(&self, x: usize, y: usize) -> [f64; 3] {
-        let p = Vector2::new(x as f64 + 0.5, y as f64 + 0.5);
-        let [a, b, c] = &self.t;
-        let cross = |u: Vector2<f64>, v: Vector2<f64>| u.x * v.y - u.y * v.x;
-        let wa = cross(b - p, c - p) / self.area2;
-        let wb = cross(c - p, a - p) / self.area2;
-        [wa, wb, 1.0 - wa - wb]
-    }
-
-    /// Signed distances (texels) from the centre (x, y) to the three edge lines, positive
-    /// inside.
-    fn edge_distances(&self, x: usize, y: usize) -> [f64; 3] {
-        let b = self.bary(x, y);
-        let [a, bb, c] = &self.t;
-        let len = [(c - bb).norm(), (a - c).norm(), (bb - a).norm()];
-        std::array::from_fn(|k| b[k] * self.area2.abs() / len[k].max(1e-300))
-    }
-}
-
-/// Which face owns each texel: the face containing the texel centre (the first by index on a
-/// shared edge); texels a face merely touches (within 0.75 texel of it) go to the first such
-/// face if no centre lies in them, so chart borders are coloured from their own triangles.
-pub(crate) struct TexelMap {
-    size: usize,
-    faces: Vec<Option<FaceRaster>>,
-    /// Faces overlapping each band, by index.
-    bands: Vec<Vec<u32>>,
-    owner: Vec<u32>,
-}
-
-const NO_FACE: u32 = u32::MAX;
-
-impl TexelMap {
-    fn new(mesh: &Mesh, size: u32) -> Result<Self> {
-        let uv = mesh
-            .uv
-            .as_ref()
-            .ok_or_else(|| Error::Invalid("resampling needs a mesh with an atlas".into()))?;
-        let s = size as f64;
-        let n = size as usize;
-        let faces: Vec<Option<FaceRaster>> = (0..mesh.num_faces())
-            .into_par_iter()
-            .map(|f| {
-                let c = uv.faces[f];
-                let t: [Vector2<f64>; 3] = std::array::from_fn(|k| {
-                    let q = uv.coords[c[k] as usize];
-                    Vector2::new(q.x as f64 * s, (1.0 - q.y as f64) * s)
-                });
-                let cross = |u: Vector2<f64>, v: Vector2<f64>| u.x * v.y - u.y * v.x;
-                let area2 = cross(t[1] - t[0], t[2] - t[0]);
-                if area2.abs() < 1e-12 || t.iter().any(|p| !p.x.is_finite() || !p.y.is_finite()) {
-                    return None;
-                }
-                let lo = t[0].inf(&t[1]).inf(&t[2]);
-                let hi = t[0].sup(&t[1]).sup(&t[2]);
-                if hi.x < 0.0 || hi.y < 0.0 || lo.x > s || lo.y > s {
-                    return None; // another page
-                }
-                let clamp = |v: f64| v.clamp(0.0, s - 1.0) as usize;
-                let a3 = mesh.face_area(FaceId(f as u32));
-                Some(FaceRaster {
-                    t,
-                    area2,
-                    rows: (clamp(lo.y - 1.0), clamp(hi.y + 1.0)),
-                    cols: (clamp(lo.x - 1.0), clamp(hi.x + 1.0)),
-                    texel_len: (a3 / (0.5 * area2.abs())).sqrt(),
-                })
-            })
-            .collect();
-        let mut bands: Vec<Vec<u32>> = vec![Vec::new(); n.div_ceil(BAND)];
-        for (f, r) in faces.iter().enumerate() {
-            if let Some(r) = r {
-                for band in bands
-                    .iter_mut()
-                    .take(r.rows.1 / BAND + 1)
-                    .skip(r.rows.0 / BAND)
-                {
-                    band.push(f as u32);
-                }
-            }
-        }
-        let mut owner = vec![NO_FACE; n * n];
-        owner
-            .par_chunks_mut(BAND * n)
-            .zip(bands.par_iter())
-            .enumerate()
-            .for_each(|(bi, (rows, list))| {
-                let y0 = bi * BAND;
-                let y1 = y0 + rows.len() / n;
-                for conservative in [false, true] {
-                    for &f in list {
-                        let r = faces[f as usize].as_ref().expect("listed faces rasterise");
-                        for y in r.rows.0.max(y0)..=r.rows.1.min(y1 - 1) {
-                            for x in r.cols.0..=r.cols.1 {
-                                let o = &mut rows[(y - y0) * n + x];
-                                if *o != NO_FACE {
-                                    continue;
-                                }
-                                let inside = if conservative {
-                                    r.edge_distances(x, y).iter().all(|&d| d >= -0.75)
-                                } else {
-                                    r.bary(x, y).iter().all(|&b| b >= 0.0)
-                                };
-                                if inside {
-                                    *o = f;
-                                }
-                            }
-                        }
-                    }
-                }
-            });
-        Ok(TexelMap {
-            size: n,
-            faces,
-            bands,
-            owner,
-        })
-    }
 }
 
 /// Clamps barycentrics to the triangle (texels just outside it, owned conservatively).
@@ -656,7 +509,8 @@ pub(crate) struct Prepared<'a> {
     pub(crate) mesh: &'a Mesh,
     pub(crate) normals: &'a [Vector3<f64>],
     pub(crate) binding: &'a Binding,
-    pub(crate) map: TexelMap,
+    gains: &'a Gains,
+    pub(crate) atlas: &'a Atlas,
     pub(crate) classes: Vec<FaceClass>,
     pub(crate) common: Common,
     pub(crate) vertex_colors: Vec<[f32; 3]>,
@@ -702,22 +556,25 @@ impl PhotoSampler<'_> {
 }
 
 impl<'a> Prepared<'a> {
-    /// Checks the inputs and does the per-face work for a `size` x `size` atlas.
+    /// Checks the inputs and does the per-face work for `atlas`.
     pub(crate) fn new(
         mesh: &'a Mesh,
+        atlas: &'a Atlas,
         normals: &'a [Vector3<f64>],
         binding: &'a Binding,
-        size: u32,
+        gains: &'a Gains,
         opts: &ResampleOptions,
     ) -> Result<Self> {
-        if binding.offsets.len() != mesh.num_vertices() + 1 || normals.len() != mesh.num_vertices()
+        if binding.offsets.len() != mesh.num_vertices() + 1
+            || normals.len() != mesh.num_vertices()
+            || atlas.face_chart.len() != mesh.num_faces()
         {
             return Err(Error::Invalid(
-                "binding and normals must belong to the mesh being resampled".into(),
+                "internal: binding, normals and atlas must belong to the mesh being resampled"
+                    .into(),
             ));
         }
         let bind_opts = &binding.options;
-        let map = TexelMap::new(mesh, size)?;
         let face_check = (bind_opts.method == Method::Robust
             && bind_opts.consistency == Consistency::Face)
             .then_some(bind_opts.consistency_threshold);
@@ -738,7 +595,7 @@ impl<'a> Prepared<'a> {
             mesh,
             normals,
             binding,
-            map,
+            atlas,
             classes,
             common,
             vertex_colors,
@@ -746,19 +603,19 @@ impl<'a> Prepared<'a> {
             vertices_unreachable,
             mean_edge: mesh.mean_edge_length(),
             robust,
-            identity: binding.gains.is_identity(),
+            gains,
+            identity: gains.is_identity(),
         })
     }
 
     /// Atlas side in texels.
     pub(crate) fn size(&self) -> usize {
-        self.map.size
+        self.atlas.texels.size
     }
 
     /// Face owning texel `i` (row-major), if any.
     pub(crate) fn owner(&self, i: usize) -> Option<u32> {
-        let f = self.map.owner[i];
-        (f != NO_FACE).then_some(f)
+        self.atlas.owner(i)
     }
 
     /// Whether face `f` samples photograph `photo`.
@@ -768,7 +625,7 @@ impl<'a> Prepared<'a> {
 
     /// Texel rows and columns (inclusive) face `f` may own, if it lies on the page.
     pub(crate) fn face_rect(&self, f: usize) -> Option<((usize, usize), (usize, usize))> {
-        self.map.faces[f].as_ref().map(|r| (r.rows, r.cols))
+        self.atlas.face_rect(f)
     }
 
     /// The part of getting photograph `pi` (decoded as `rgb`) ready to sample that takes
@@ -844,8 +701,8 @@ impl<'a> Prepared<'a> {
         coarse: Option<(usize, usize)>,
         mut emit: impl FnMut(usize, usize, [f32; 3], f32),
     ) {
-        let n = self.map.size;
-        let Some(r) = self.map.faces[f as usize].as_ref() else {
+        let n = self.atlas.texels.size;
+        let Some(r) = self.atlas.texels.faces[f as usize].as_ref() else {
             return;
         };
         let (mesh, view, pi) = (self.mesh, ph.view, ph.index);
@@ -875,7 +732,7 @@ impl<'a> Prepared<'a> {
         let gain: [[f32; 3]; 3] = if self.identity {
             [[1.0; 3]; 3]
         } else {
-            nrm.map(|nv| self.binding.gains.factor(pi, &nv))
+            nrm.map(|nv| self.gains.factor(pi, &nv))
         };
         let (step, (gx, gy)) = match coarse {
             Some(g) => (2, g),
@@ -886,7 +743,7 @@ impl<'a> Prepared<'a> {
         let (ya, xa) = (ya + ((ya ^ gy) & (step - 1)), xa + ((xa ^ gx) & (step - 1)));
         for y in (ya..=r.rows.1.min(y1 - 1)).step_by(step) {
             for x in (xa..=r.cols.1).step_by(step) {
-                if self.map.owner[y * n + x] != f {
+                if self.atlas.texels.owner[y * n + x] != f {
                     continue;
                 }
                 let b = clamp_bary(r.bary(x, y));
@@ -958,7 +815,7 @@ impl<'a> Prepared<'a> {
 
     /// Face `f`'s vertex colours interpolated at texel (x, y).
     pub(crate) fn vertex_color_at(&self, f: u32, x: usize, y: usize) -> [f32; 3] {
-        let r = self.map.faces[f as usize]
+        let r = self.atlas.texels.faces[f as usize]
             .as_ref()
             .expect("owners rasterise");
         let b = clamp_bary(r.bary(x, y));
@@ -981,7 +838,7 @@ impl<'a> Prepared<'a> {
 
     /// Fills the gutter and counts: the last step of every merge.
     pub(crate) fn finish(
-        self,
+        &self,
         mut color: Vec<f32>,
         mut source: Vec<u8>,
         views: Vec<u8>,
@@ -989,10 +846,10 @@ impl<'a> Prepared<'a> {
         opts: &ResampleOptions,
         seconds: (f64, f64),
     ) -> Resampled {
-        let n = self.map.size;
+        let n = self.atlas.texels.size;
         let gutter = extend_into_gutter(&mut color, &mut source, n, opts.gutter_fill);
         let count = |s: TexelSource| source.par_iter().filter(|&&v| v == s as u8).count() as u64;
-        let classes = self.classes;
+        let classes = self.classes.clone();
         let stats = ResampleStats {
             green: classes.iter().filter(|c| **c == FaceClass::Green).count() as u64,
             blue: classes.iter().filter(|c| **c == FaceClass::Blue).count() as u64,
@@ -1017,26 +874,10 @@ impl<'a> Prepared<'a> {
             views,
             best_photo: best,
             classes,
-            vertex_colors: self.vertex_colors,
+            vertex_colors: self.vertex_colors.clone(),
             stats,
         }
     }
-}
-
-/// Which face owns each texel of a `size` x `size` atlas (row-major, `u32::MAX` for none)
-/// and the texel rows and columns (inclusive) each face may own: the rasterisation
-/// resampling uses, for stages that run after it.
-pub(crate) type FaceRects = Vec<Option<((usize, usize), (usize, usize))>>;
-
-/// See [`FaceRects`].
-pub(crate) fn texel_owners(mesh: &Mesh, size: u32) -> Result<(Vec<u32>, FaceRects)> {
-    let map = TexelMap::new(mesh, size)?;
-    let rects = map
-        .faces
-        .iter()
-        .map(|r| r.as_ref().map(|r| (r.rows, r.cols)))
-        .collect();
-    Ok((map.owner, rects))
 }
 
 /// No photograph (in [`Resampled::best_photo`]).
@@ -1053,22 +894,33 @@ pub(crate) fn check_photo_count(n: usize) -> Result<()> {
     Ok(())
 }
 
-/// Stage 3: resamples the bound photographs into a `size` x `size` atlas (page 0 of the mesh's
-/// UVs), each texel the weighted mean of the photographs that see it (`winner` false) or the
+/// Stage 3: resamples the bound photographs into `atlas` (page 0 of the mesh's UVs), each texel the weighted mean of the photographs that see it (`winner` false) or the
 /// colour of the one with the largest weight (`winner` true). `normals` are unit vertex
 /// normals of `mesh`.
 #[allow(clippy::too_many_arguments)]
 pub fn resample(
     mesh: &Mesh,
     normals: &[Vector3<f64>],
+    atlas: &Atlas,
     binding: &Binding,
+    gains: &Gains,
     photos: &[Photo],
-    size: u32,
     opts: &ResampleOptions,
     winner: bool,
     progress: &dyn Progress,
 ) -> Result<Resampled> {
-    let prep = Prepared::new(mesh, normals, binding, size, opts)?;
+    let prep = Prepared::new(mesh, atlas, normals, binding, gains, opts)?;
+    resample_with(&prep, photos, opts, winner, progress)
+}
+
+/// [`resample`] with the per-face work done.
+pub(crate) fn resample_with(
+    prep: &Prepared,
+    photos: &[Photo],
+    opts: &ResampleOptions,
+    winner: bool,
+    progress: &dyn Progress,
+) -> Result<Resampled> {
     check_photo_count(photos.len())?;
     let n = prep.size();
     // Accumulators: weighted colour sum and weight (or the best colour and its weight),
@@ -1088,7 +940,7 @@ pub fn resample(
         acc.par_chunks_mut(BAND * n)
             .zip(views.par_chunks_mut(BAND * n))
             .zip(best.par_chunks_mut(BAND * n))
-            .zip(prep.map.bands.par_iter())
+            .zip(prep.atlas.texels.bands.par_iter())
             .enumerate()
             .for_each(|(bi, (((acc, views), best), list))| {
                 let y0 = bi * BAND;

@@ -9,7 +9,9 @@ use crate::camera::{Camera, CameraModel, Pose, PosedCamera};
 use crate::error::{Error, Result};
 use crate::io::{self, EncodedTexture};
 use crate::mesh::{Mesh, UvMap, VertexId};
-use crate::render::{render, Lighting, RayMesh, RenderOptions, Shading, Texture};
+use crate::raycast::RayMesh;
+use crate::render::{render, Lighting, RenderOptions, Shading, Texture};
+use crate::rng::SplitMix64;
 use image::{DynamicImage, Rgb32FImage, RgbImage};
 use nalgebra::{Point3, Rotation3, UnitQuaternion, Vector2, Vector3};
 use std::collections::BTreeMap;
@@ -60,22 +62,6 @@ impl Default for SampleOptions {
             jpeg_quality: 97,
             seed: 1,
         }
-    }
-}
-
-/// SplitMix64: a tiny deterministic generator (no dependency, same stream everywhere).
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E3779B97F4A7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58476D1CE4E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D049BB133111EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn range(&mut self, a: f64, b: f64) -> f64 {
-        a + (b - a) * self.next()
     }
 }
 
@@ -230,7 +216,7 @@ pub fn generate(
             "the truth mesh needs texture coordinates".into(),
         ));
     }
-    let mut rng = Rng(opts.seed);
+    let mut rng = SplitMix64::new(opts.seed);
     // The texture as stored (JPEG in the GLB) is what the photos show, so re-rendering the
     // truth reproduces them up to the photographs' own JPEG compression.
     let encoded = {

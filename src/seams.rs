@@ -18,13 +18,13 @@
 //!   a half texels inside. The ratio is the mean seam difference over the mean control
 //!   difference.
 
+use crate::atlas::texels::border_samples;
 use crate::mesh::Mesh;
 use crate::resample::{TexelSource, NO_PHOTO};
 use image::Rgb32FImage;
 use nalgebra::Vector2;
 use rayon::prelude::*;
 use serde::Serialize;
-use std::collections::HashMap;
 
 /// Seam ratios of one atlas.
 #[derive(Debug, Clone, Copy, Serialize, PartialEq)]
@@ -142,89 +142,6 @@ pub fn seam_visibility(
         },
         chart_border_samples: samples,
     }
-}
-
-/// One sample along a chart border: the shared 3D edge `a`-`b` read on both of its faces.
-pub(crate) struct BorderSample {
-    /// The two faces.
-    pub faces: [usize; 2],
-    /// Per side, the texture-coordinate indices of `a` and `b`.
-    pub uv: [[u32; 2]; 2],
-    /// Position along the edge from `a` (0) to `b` (1).
-    pub t: f64,
-    /// Per side, the point on the edge (texel coordinates: x right, y down).
-    pub at: [Vector2<f64>; 2],
-    /// Per side, the unit step into its face, perpendicular to the edge.
-    pub inward: [Vector2<f64>; 2],
-}
-
-/// Samples along every mesh edge where two charts meet (the same 3D edge with different
-/// texture coordinates on its two faces, both on an `n`-texel page), one per texel of edge
-/// length.
-pub(crate) fn border_samples(mesh: &Mesh, n: usize) -> Vec<BorderSample> {
-    let Some(uv) = &mesh.uv else {
-        return Vec::new();
-    };
-    let s = n as f64;
-    let texel = |c: u32| {
-        let q = uv.coords[c as usize];
-        Vector2::new(q.x as f64 * s, (1.0 - q.y as f64) * s)
-    };
-    let on_page = |p: Vector2<f64>| p.x >= 0.0 && p.y >= 0.0 && p.x <= s && p.y <= s;
-    let inward = |a: Vector2<f64>, b: Vector2<f64>, o: Vector2<f64>| {
-        let e = (b - a).try_normalize(1e-12)?;
-        let nrm = Vector2::new(-e.y, e.x);
-        Some(if nrm.dot(&(o - a)) >= 0.0 { nrm } else { -nrm })
-    };
-    // Each undirected edge: its first face and corner indices.
-    let mut first: HashMap<(u32, u32), (usize, usize)> = HashMap::new();
-    let mut out = Vec::new();
-    for (f, fv) in mesh.faces.iter().enumerate() {
-        for k in 0..3 {
-            let (a, b) = (fv[k].0, fv[(k + 1) % 3].0);
-            let key = (a.min(b), a.max(b));
-            let Some(&(g, gk)) = first.get(&key) else {
-                first.insert(key, (f, k));
-                continue;
-            };
-            // Texture coordinates of a then b on a face, and its third corner.
-            let side = |face: usize, corner: usize| {
-                let c = uv.faces[face];
-                let (ca, cb) = (c[corner], c[(corner + 1) % 3]);
-                let ab = if mesh.faces[face][corner].0 == a {
-                    [ca, cb]
-                } else {
-                    [cb, ca]
-                };
-                (ab, c[(corner + 2) % 3])
-            };
-            let (i1, o1) = side(f, k);
-            let (i2, o2) = side(g, gk);
-            if i1 == i2 {
-                continue; // not a border: the same texture coordinates on both faces
-            }
-            let (a1, b1, a2, b2) = (texel(i1[0]), texel(i1[1]), texel(i2[0]), texel(i2[1]));
-            let (p1, p2) = (texel(o1), texel(o2));
-            if ![a1, b1, p1, a2, b2, p2].into_iter().all(on_page) {
-                continue;
-            }
-            let (Some(n1), Some(n2)) = (inward(a1, b1, p1), inward(a2, b2, p2)) else {
-                continue;
-            };
-            let m = ((b1 - a1).norm().max((b2 - a2).norm()).ceil() as usize).max(1);
-            for j in 0..m {
-                let t = (j as f64 + 0.5) / m as f64;
-                out.push(BorderSample {
-                    faces: [f, g],
-                    uv: [i1, i2],
-                    t,
-                    at: [a1 + (b1 - a1) * t, a2 + (b2 - a2) * t],
-                    inward: [n1, n2],
-                });
-            }
-        }
-    }
-    out
 }
 
 /// Sums of the seam and control differences along chart borders, and the sample count.

@@ -1213,8 +1213,9 @@ fn option_values_the_library_refuses_name_the_option() {
         &texture_fails(d.path(), &["--background", "2,0,0"]),
         &["background colour", "[0, 1]"],
     );
-    names(
-        &texture_fails(d.path(), &["--background", "red"]),
+    usage_fails(
+        "texture",
+        &[".", "-o", "out", "--background", "red"],
         &["'red' is not a number"],
     );
     usage_fails(

@@ -608,3 +608,81 @@ fn black_masks_bind_nothing() {
         "{err}"
     );
 }
+
+/// `keep_uvs` textures a mesh into the layout it arrived with: scantex's own atlas of the
+/// sample, written as OBJ and read back, textured again with its UVs kept, keeps those UVs and
+/// gives the same texture (same held-out score, nearly the same texels).
+#[test]
+fn keep_uvs_textures_into_the_given_layout() {
+    let scene = common::root().join("samples/torus");
+    let dir = tempfile::tempdir().unwrap();
+    let mut opts = TextureOptions::default();
+    opts.atlas.pack.size = 1024;
+    let first = dir.path().join("first");
+    texture_to(&scene, &opts, &first);
+    let (given, _) = scantex::io::read_mesh(&first.join("model.obj")).unwrap();
+    let s = torus();
+    opts.keep_uvs = true;
+    let r = texture(&given, &s.photos, &opts, &Silent).unwrap();
+    let again = dir.path().join("again");
+    write_outputs(&again, &r, TextureFormat::Png, None).unwrap();
+    let (kept, _) = scantex::io::read_mesh(&again.join("model.obj")).unwrap();
+    let (a, b) = (given.uv.as_ref().unwrap(), kept.uv.as_ref().unwrap());
+    assert_eq!(a.faces, b.faces);
+    assert_eq!(a.coords, b.coords);
+    assert_eq!(r.report.atlas.overlapping_texels, 0);
+    assert!(r.report.warnings.is_empty(), "{:?}", r.report.warnings);
+    let (p1, p2) = (held_out(&scene, &first).psnr, held_out(&scene, &again).psnr);
+    assert!((p1 - p2).abs() < 0.1, "held-out PSNR {p1} then {p2}");
+    let img = |d: &Path| image::open(d.join("model.png")).unwrap().into_rgb8();
+    let (i1, i2) = (img(&first), img(&again));
+    let mse = i1
+        .as_raw()
+        .iter()
+        .zip(i2.as_raw())
+        .map(|(&x, &y)| (x as f64 - y as f64).powi(2))
+        .sum::<f64>()
+        / i1.as_raw().len() as f64;
+    let psnr = 10.0 * (255.0f64.powi(2) / mse.max(1e-12)).log10();
+    assert!(psnr > 35.0, "the two atlases differ: {psnr} dB");
+}
+
+/// `keep_uvs` refuses a mesh with no UVs, or with UVs outside the page, naming the face; and
+/// warns when the given UVs overlap (overlapping parts share their texels' colour).
+#[test]
+fn keep_uvs_refuses_what_it_cannot_keep_and_warns_on_overlaps() {
+    let s = torus();
+    let (mesh, _) = s.mesh.as_ref().unwrap();
+    let mut opts = TextureOptions::default();
+    opts.atlas.pack.size = 256;
+    opts.keep_uvs = true;
+    opts.restoration = scantex::pipeline::Restoration::Off;
+    let mut bare = mesh.clone();
+    bare.uv = None;
+    let e = texture(&bare, &s.photos, &opts, &Silent)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("no texture coordinates"), "{e}");
+    // An atlas folded onto itself (u -> 0.25 + |u - 0.5|): charts from both halves overlap.
+    let (mut folded, _) = scantex::atlas::parameterize(mesh, &opts.atlas).unwrap();
+    let uv = folded.uv.as_mut().unwrap();
+    for c in &mut uv.coords {
+        c.x = 0.25 + (c.x - 0.5).abs();
+    }
+    let first = uv.faces[0];
+    let r = texture(&folded, &s.photos, &opts, &Silent).unwrap();
+    assert!(r.report.atlas.overlapping_texels > 0);
+    assert!(
+        r.report.warnings.iter().any(|w| w.contains("overlap")),
+        "{:?}",
+        r.report.warnings
+    );
+    let mut off = folded;
+    for k in first {
+        off.uv.as_mut().unwrap().coords[k as usize].x += 3.0;
+    }
+    let e = texture(&off, &s.photos, &opts, &Silent)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("face 0") && e.contains("outside [0, 1]"), "{e}");
+}

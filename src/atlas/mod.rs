@@ -11,11 +11,13 @@ pub mod param;
 pub mod segment;
 #[cfg(test)]
 mod test_meshes;
+pub(crate) mod texels;
 
-use crate::mesh::Mesh;
+use crate::mesh::{Mesh, UnionFind};
 use nalgebra::Vector2;
 use param::ChartMap;
 use segment::{is_disk, split, Adjacency, SegmentOptions};
+use texels::TexelMap;
 
 /// Options for [`flatten_all`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -165,6 +167,109 @@ fn flatten_chart(
     out
 }
 
+/// One chart's place on the atlas page: its faces (those that own texels, by index) and the
+/// bounding rectangle of their texels.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChartRect {
+    /// Faces of the chart that rasterise on the page, in index order.
+    pub faces: Vec<u32>,
+    /// Left column of the rectangle.
+    pub x0: usize,
+    /// Top row of the rectangle.
+    pub y0: usize,
+    /// Width in texels.
+    pub w: usize,
+    /// Height in texels.
+    pub h: usize,
+}
+
+/// The atlas as every stage after the first sees it: the page size, the charts, each face's
+/// chart and the texel raster (which face owns each texel), built once from the mesh's UVs.
+/// Charts are numbered in the order of their first face that owns texels; faces with no texel
+/// on the page have no chart (`u32::MAX`).
+pub struct Atlas {
+    /// Page side in texels.
+    pub size: u32,
+    /// The charts on the page.
+    pub charts: Vec<ChartRect>,
+    /// Chart of each face (index into `charts`), `u32::MAX` for faces with no texel.
+    pub face_chart: Vec<u32>,
+    pub(crate) texels: TexelMap,
+}
+
+impl Atlas {
+    /// The atlas of UVs a mesh arrived with (from any tool): charts are the UV islands, faces
+    /// joined through shared texture-coordinate indices. Page 0 (u, v in [0, 1]) only.
+    pub fn from_uvs(mesh: &Mesh, size: u32) -> crate::Result<Atlas> {
+        let uv = mesh
+            .uv
+            .as_ref()
+            .ok_or_else(|| crate::Error::Invalid("the mesh has no texture coordinates".into()))?;
+        let island = uv_islands(uv);
+        Atlas::with_charts(mesh, size, &island)
+    }
+
+    /// The atlas of `mesh`'s UVs where `chart_of` gives each face's chart under any numbering
+    /// (stage 1's, or UV islands).
+    fn with_charts(mesh: &Mesh, size: u32, chart_of: &[u32]) -> crate::Result<Atlas> {
+        if !SIZE_RANGE.contains(&size) {
+            return Err(crate::Error::Invalid(format!(
+                "atlas size {size} must lie in {SIZE_RANGE:?}"
+            )));
+        }
+        let texels = TexelMap::new(mesh, size)?;
+        let mut index_of = std::collections::HashMap::new();
+        let mut charts: Vec<ChartRect> = Vec::new();
+        let mut face_chart = vec![u32::MAX; mesh.num_faces()];
+        for (f, slot) in face_chart.iter_mut().enumerate() {
+            let Some(r) = &texels.faces[f] else {
+                continue;
+            };
+            let ((r0, r1), (c0, c1)) = (r.rows, r.cols);
+            let ci = *index_of.entry(chart_of[f]).or_insert_with(|| {
+                charts.push(ChartRect {
+                    faces: Vec::new(),
+                    x0: c0,
+                    y0: r0,
+                    w: c1 + 1,
+                    h: r1 + 1,
+                });
+                charts.len() as u32 - 1
+            });
+            *slot = ci;
+            let ch = &mut charts[ci as usize];
+            ch.faces.push(f as u32);
+            // w and h hold the exclusive right and bottom edges until the end.
+            ch.x0 = ch.x0.min(c0);
+            ch.y0 = ch.y0.min(r0);
+            ch.w = ch.w.max(c1 + 1);
+            ch.h = ch.h.max(r1 + 1);
+        }
+        for ch in &mut charts {
+            ch.w -= ch.x0;
+            ch.h -= ch.y0;
+        }
+        Ok(Atlas {
+            size,
+            charts,
+            face_chart,
+            texels,
+        })
+    }
+
+    /// Face owning texel `i` (row-major), if any.
+    #[inline]
+    pub fn owner(&self, i: usize) -> Option<u32> {
+        let f = self.texels.owner[i];
+        (f != texels::NO_FACE).then_some(f)
+    }
+
+    /// Texel rows and columns (inclusive) face `f` may own, if it lies on the page.
+    pub fn face_rect(&self, f: usize) -> Option<((usize, usize), (usize, usize))> {
+        self.texels.faces[f].as_ref().map(|r| (r.rows, r.cols))
+    }
+}
+
 /// Options for [`parameterize`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AtlasOptions {
@@ -253,37 +358,83 @@ pub struct AtlasReport {
     pub seconds_pack: f64,
     /// Seconds spent measuring (rasterising the layout).
     pub seconds_measure: f64,
-    /// Chart of each face (not serialised).
-    #[serde(skip)]
-    pub face_chart: Vec<u32>,
 }
 
 /// Stage 1: gives `mesh` texture coordinates in one atlas. The mesh is welded first (vertices
 /// split along old UV seams are one surface again); its faces keep their order.
 pub fn parameterize(mesh: &Mesh, opts: &AtlasOptions) -> crate::Result<(Mesh, AtlasReport)> {
-    opts.validate()?;
-    let t0 = std::time::Instant::now();
     let mut m = mesh.clone();
     m.uv = None;
     m.texture = None;
     m.weld();
-    let adj = Adjacency::new(&m);
-    let maps = flatten_all_with(&m, &adj, &opts.flatten);
+    let (uv, _, report) = layout(&m, opts)?;
+    m.uv = Some(uv);
+    Ok((m, report))
+}
+
+/// Stage 1 as texturing runs it: `mesh` (welded, as [`Mesh::weld`] leaves it) gains its atlas
+/// UVs, and the [`Atlas`] that later stages borrow is built from stage 1's own charts.
+pub fn build(mut mesh: Mesh, opts: &AtlasOptions) -> crate::Result<(Mesh, Atlas, AtlasReport)> {
+    let (uv, face_chart, report) = layout(&mesh, opts)?;
+    mesh.uv = Some(uv);
+    let atlas = Atlas::with_charts(&mesh, opts.pack.size, &face_chart)?;
+    Ok((mesh, atlas, report))
+}
+
+/// Stage 1 for a mesh that keeps the UVs it arrived with (`texture --keep-uvs`): no new
+/// layout, the [`Atlas`] of its UV islands on a `size` page and the report [`measure`] gives.
+/// Texturing writes one page: faces whose UVs lie outside [0, 1] are refused.
+pub fn keep(mesh: Mesh, size: u32) -> crate::Result<(Mesh, Atlas, AtlasReport)> {
+    let Some(uv) = &mesh.uv else {
+        return Err(crate::Error::Invalid(
+            "--keep-uvs: the mesh has no texture coordinates to keep".into(),
+        ));
+    };
+    let centroid = |f: usize| {
+        let c = uv.faces[f].map(|i| uv.coords[i as usize]);
+        (c[0] + c[1] + c[2]) / 3.0
+    };
+    let off_page = |f: usize| {
+        let c = centroid(f);
+        !((0.0..=1.0).contains(&c.x) && (0.0..=1.0).contains(&c.y))
+    };
+    if let Some(f) = (0..uv.faces.len()).find(|&f| off_page(f)) {
+        let c = centroid(f);
+        return Err(crate::Error::Invalid(format!(
+            "--keep-uvs: face {f} lies at texture coordinates ({}, {}), outside [0, 1] (another \
+             UDIM page, or a repeating texture); texturing writes one page",
+            c.x, c.y
+        )));
+    }
+    let report = measure(&mesh, size)?;
+    let atlas = Atlas::from_uvs(&mesh, size)?;
+    Ok((mesh, atlas, report))
+}
+
+/// Charts, flattening, stretch budget and packing of a welded mesh: the UVs, each face's chart
+/// and the report.
+fn layout(
+    m: &Mesh,
+    opts: &AtlasOptions,
+) -> crate::Result<(crate::mesh::UvMap, Vec<u32>, AtlasReport)> {
+    opts.validate()?;
+    let t0 = std::time::Instant::now();
+    let adj = Adjacency::new(m);
+    let maps = flatten_all_with(m, &adj, &opts.flatten);
     let t1 = std::time::Instant::now();
     let scales = if opts.budget_by_energy {
-        optimize::chart_scales(&m, &maps, &opts.flatten.stretch)
+        optimize::chart_scales(m, &maps, &opts.flatten.stretch)
     } else {
         vec![1.0; maps.len()]
     };
-    let packed = pack::pack(&m, &maps, &scales, &opts.pack)?;
+    let packed = pack::pack(m, &maps, &scales, &opts.pack)?;
     let t2 = std::time::Instant::now();
-    let mut report = measure_with(&m, &adj, &packed.uv, packed.face_chart, opts.pack.size);
+    let mut report = measure_with(m, &adj, &packed.uv, &packed.face_chart, opts.pack.size);
     report.texels_per_unit = packed.texels_per_unit;
     report.seconds_charts = (t1 - t0).as_secs_f64();
     report.seconds_pack = (t2 - t1).as_secs_f64();
     report.seconds_measure = t2.elapsed().as_secs_f64();
-    m.uv = Some(packed.uv);
-    Ok((m, report))
+    Ok((packed.uv, packed.face_chart, report))
 }
 
 /// Measures the UV atlas a mesh already has (from any tool), as [`parameterize`] reports its
@@ -301,32 +452,37 @@ pub fn measure(mesh: &Mesh, size: u32) -> crate::Result<AtlasReport> {
             "atlas size {size} must lie in 1..=32768"
         )));
     }
-    let mut islands = crate::mesh::UnionFind::new(uv.coords.len());
-    for t in &uv.faces {
-        islands.union(t[0] as usize, t[1] as usize);
-        islands.union(t[0] as usize, t[2] as usize);
-    }
-    let mut id: std::collections::HashMap<usize, u32> = std::collections::HashMap::new();
-    let face_chart: Vec<u32> = uv
-        .faces
-        .iter()
-        .map(|t| {
-            let r = islands.find(t[0] as usize);
-            let n = id.len() as u32;
-            *id.entry(r).or_insert(n)
-        })
-        .collect();
+    let face_chart = uv_islands(uv);
     let mut m = mesh.clone();
     m.weld();
     let adj = Adjacency::new(&m);
-    Ok(measure_with(&m, &adj, uv, face_chart, size))
+    Ok(measure_with(&m, &adj, uv, &face_chart, size))
+}
+
+/// Each face's UV island (faces joined through shared texture-coordinate indices), numbered in
+/// the order of their first face.
+fn uv_islands(uv: &crate::mesh::UvMap) -> Vec<u32> {
+    let mut sets = UnionFind::new(uv.coords.len());
+    for t in &uv.faces {
+        sets.union(t[0] as usize, t[1] as usize);
+        sets.union(t[0] as usize, t[2] as usize);
+    }
+    let mut id: std::collections::HashMap<usize, u32> = std::collections::HashMap::new();
+    uv.faces
+        .iter()
+        .map(|t| {
+            let r = sets.find(t[0] as usize);
+            let n = id.len() as u32;
+            *id.entry(r).or_insert(n)
+        })
+        .collect()
 }
 
 fn measure_with(
     m: &Mesh,
     adj: &Adjacency,
     uv: &crate::mesh::UvMap,
-    face_chart: Vec<u32>,
+    face_chart: &[u32],
     size: u32,
 ) -> AtlasReport {
     let mut stretch = param::stretch_uv(m, uv);
@@ -345,19 +501,19 @@ fn measure_with(
             .max()
             .unwrap_or(0)
     ];
-    for (a, &c) in signed.iter().zip(&face_chart) {
+    for (a, &c) in signed.iter().zip(face_chart) {
         island[c as usize] += a;
     }
     stretch.flipped = signed
         .iter()
-        .zip(&face_chart)
+        .zip(face_chart)
         .filter(|(a, &c)| **a != 0.0 && (**a > 0.0) != (island[c as usize] > 0.0))
         .count();
     let pages = (0..uv.faces.len())
         .map(|f| pack::face_page(uv, f) + 1)
         .max()
         .unwrap_or(1);
-    let cov = pack::coverage(uv, &face_chart, size, pages);
+    let cov = pack::coverage(uv, face_chart, size, pages);
     let covered = cov.iter().filter(|&&c| c > 0).count();
     let overlapping = cov.iter().filter(|&&c| c > 1).count();
     let (mut seam, mut total) = (0.0, 0.0);
@@ -392,7 +548,6 @@ fn measure_with(
         seconds_charts: 0.0,
         seconds_pack: 0.0,
         seconds_measure: 0.0,
-        face_chart,
     }
 }
 
@@ -538,8 +693,15 @@ mod tests {
             },
             ..Default::default()
         };
-        for mesh in meshes {
-            let (m, r) = parameterize(&mesh, &opts).unwrap();
+        for mut mesh in meshes {
+            mesh.weld();
+            let (m, atlas, r) = build(mesh.clone(), &opts).unwrap();
+            // Stage 1's charts are the UV islands later stages would find in its UVs.
+            let islands = Atlas::from_uvs(&m, 512).unwrap();
+            assert_eq!(atlas.charts, islands.charts);
+            assert_eq!(atlas.face_chart, islands.face_chart);
+            assert_eq!(atlas.charts.len(), r.charts);
+            assert!(atlas.face_chart.iter().all(|&c| c != u32::MAX));
             assert_eq!(r.overlapping_texels, 0, "{r:?}");
             assert_eq!((r.stretch.flipped, r.stretch.zero_area), (0, 0));
             let uv = m.uv.as_ref().unwrap();
@@ -549,7 +711,7 @@ mod tests {
                 .iter()
                 .all(|c| (0.0..=1.0).contains(&c.x) && (0.0..=1.0).contains(&c.y)));
             // Gutter: no texel within 3 texels (Chebyshev) of a chart belongs to another chart.
-            let owner = texel_owner(uv, &r.face_chart, 512);
+            let owner = texel_owner(uv, &atlas.face_chart, 512);
             for y in 0..512i64 {
                 for x in 0..512i64 {
                     let Some(a) = owner[(y * 512 + x) as usize] else {

@@ -338,7 +338,7 @@ pub enum Depth {
 
 /// Reads an image as grey or RGB floats (alpha dropped; 8- and 16-bit values scaled to [0, 1],
 /// EXR as stored) and its depth.
-pub fn read_planar(path: &Path) -> Result<(crate::restore::Image, Depth)> {
+pub fn read_planar(path: &Path) -> Result<(crate::planar::Image, Depth)> {
     use image::ColorType as C;
     let img = read(path)?;
     let depth = match img.color() {
@@ -354,7 +354,7 @@ pub fn read_planar(path: &Path) -> Result<(crate::restore::Image, Depth)> {
         (3, img.into_rgb32f().into_raw())
     };
     Ok((
-        crate::restore::Image {
+        crate::planar::Image {
             width: w,
             height: h,
             channels,
@@ -388,7 +388,7 @@ pub fn planar_output_format(path: &Path) -> Result<String> {
 
 /// Writes an image in the format its extension names (png, jpg/jpeg, exr), 16-bit PNG when
 /// `depth` is 16-bit, atomically.
-pub fn write_planar(path: &Path, img: &crate::restore::Image, depth: Depth) -> Result<()> {
+pub fn write_planar(path: &Path, img: &crate::planar::Image, depth: Depth) -> Result<()> {
     let bytes = encode_planar(path, img, depth)?;
     super::write_atomic(path, &bytes)
 }
@@ -397,7 +397,7 @@ pub fn write_planar(path: &Path, img: &crate::restore::Image, depth: Depth) -> R
 pub fn stage_planar(
     mut staged: super::Staged,
     path: &Path,
-    img: &crate::restore::Image,
+    img: &crate::planar::Image,
     depth: Depth,
 ) -> Result<()> {
     let bytes = encode_planar(path, img, depth)?;
@@ -405,7 +405,7 @@ pub fn stage_planar(
     staged.commit()
 }
 
-fn encode_planar(path: &Path, img: &crate::restore::Image, depth: Depth) -> Result<Vec<u8>> {
+fn encode_planar(path: &Path, img: &crate::planar::Image, depth: Depth) -> Result<Vec<u8>> {
     use image::{ImageBuffer, Luma, Rgb};
     let ext = planar_output_format(path)?;
     let (w, h) = (img.width as u32, img.height as u32);

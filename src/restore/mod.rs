@@ -15,18 +15,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 use std::time::Instant;
 
-/// An image of `channels` interleaved float channels (1 = grey, 3 = RGB), row-major.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Image {
-    /// Columns.
-    pub width: usize,
-    /// Rows.
-    pub height: usize,
-    /// 1 or 3.
-    pub channels: usize,
-    /// `width * height * channels` values, nominally in [0, 1].
-    pub data: Vec<f32>,
-}
+pub use crate::planar::Image;
 
 /// How the high band's nearest neighbours are found.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Default)]
@@ -55,6 +44,16 @@ pub enum Kappa {
     Fixed(usize),
 }
 
+impl std::fmt::Display for Method {
+    /// The name `from_str` reads.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Method::Paper => "paper",
+            Method::Fast => "fast",
+        })
+    }
+}
+
 impl std::str::FromStr for Method {
     type Err = String;
     fn from_str(s: &str) -> std::result::Result<Self, String> {
@@ -62,6 +61,16 @@ impl std::str::FromStr for Method {
             "paper" => Ok(Method::Paper),
             "fast" => Ok(Method::Fast),
             _ => Err(format!("unknown method '{s}' (expected paper or fast)")),
+        }
+    }
+}
+
+impl std::fmt::Display for Kappa {
+    /// The text `from_str` reads.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Kappa::Auto => f.write_str("auto"),
+            Kappa::Fixed(k) => write!(f, "{k}"),
         }
     }
 }

@@ -13,6 +13,8 @@
 // Pixel loops index several parallel arrays by the same texel: ranges read clearer here.
 #![allow(clippy::needless_range_loop)]
 
+use crate::mesh::UnionFind;
+use crate::rng::SplitMix64;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -483,14 +485,6 @@ impl Rect {
     }
 }
 
-fn find(parent: &mut [u32], mut a: u32) -> u32 {
-    while parent[a as usize] != a {
-        parent[a as usize] = parent[parent[a as usize] as usize];
-        a = parent[a as usize];
-    }
-    a
-}
-
 /// Masked texels grouped into holes whose kernels cannot touch one another.
 fn components(l: &Level) -> Vec<Vec<usize>> {
     let masked: Vec<usize> = (0..l.w * l.h).filter(|&i| l.mask[i]).collect();
@@ -498,16 +492,13 @@ fn components(l: &Level) -> Vec<Vec<usize>> {
     for (k, &i) in masked.iter().enumerate() {
         slot[i] = k as u32;
     }
-    let mut parent: Vec<u32> = (0..masked.len() as u32).collect();
+    let mut sets = UnionFind::new(masked.len());
     for (k, &i) in masked.iter().enumerate() {
         // Earlier texels within Chebyshev distance 2 (the kernel's reach).
         for &d in &CAUSAL {
             if let Some(j) = offset(l, i, d) {
                 if slot[j] != u32::MAX {
-                    let (a, b) = (find(&mut parent, k as u32), find(&mut parent, slot[j]));
-                    if a != b {
-                        parent[a.max(b) as usize] = a.min(b);
-                    }
+                    sets.union(k, slot[j] as usize);
                 }
             }
         }
@@ -515,7 +506,7 @@ fn components(l: &Level) -> Vec<Vec<usize>> {
     let mut groups: Vec<Vec<usize>> = Vec::new();
     let mut gid = vec![u32::MAX; masked.len()];
     for (k, &i) in masked.iter().enumerate() {
-        let r = find(&mut parent, k as u32) as usize;
+        let r = sets.find(k);
         if gid[r] == u32::MAX {
             gid[r] = groups.len() as u32;
             groups.push(Vec::new());
@@ -602,17 +593,6 @@ fn schedule(l: &Level, comp: &[usize], dist: &[u32], slot: &[u32]) -> Schedule {
     (order, stalled)
 }
 
-struct SplitMix(u64);
-impl SplitMix {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-}
-
 type Fill = (usize, [f32; 4]);
 /// A hole's fill order ((texel, orientation) pairs) and its stalled texels.
 type Schedule = (Vec<(usize, u8)>, Vec<usize>);
@@ -666,7 +646,7 @@ fn synthesize_level(
         .collect();
     // Merge holes whose windows overlap (sweep along x), so each window builds one set of
     // trees.
-    let mut parent: Vec<u32> = (0..comps.len() as u32).collect();
+    let mut sets = UnionFind::new(comps.len());
     let mut by_x: Vec<usize> = (0..comps.len()).collect();
     by_x.sort_by_key(|&k| (rects[k].x0, k));
     for a in 0..by_x.len() {
@@ -676,20 +656,14 @@ fn synthesize_level(
                 break;
             }
             if ra.overlaps(rb) {
-                let (u, v) = (
-                    find(&mut parent, by_x[a] as u32),
-                    find(&mut parent, by_x[b] as u32),
-                );
-                if u != v {
-                    parent[u.max(v) as usize] = u.min(v);
-                }
+                sets.union(by_x[a], by_x[b]);
             }
         }
     }
     let mut clusters: Vec<(Rect, Vec<usize>)> = Vec::new();
     let mut cid = vec![usize::MAX; comps.len()];
     for k in 0..comps.len() {
-        let r = find(&mut parent, k as u32) as usize;
+        let r = sets.find(k);
         if cid[r] == usize::MAX {
             cid[r] = clusters.len();
             clusters.push((rects[k], Vec::new()));
@@ -774,7 +748,7 @@ fn build_sources(
     p: &Params,
     salt: u64,
 ) -> Sources {
-    let mut rng = SplitMix(p.seed ^ salt.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ o as u64);
+    let mut rng = SplitMix64::new(p.seed ^ salt.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ o as u64);
     let (rw, rh) = (rect.x1 - rect.x0, rect.y1 - rect.y0);
     let mut positions: Vec<u32> = Vec::new();
     // A window much larger than the sample: draw texels at random and keep the valid ones
@@ -787,7 +761,7 @@ fn build_sources(
             if positions.len() == p.max_sources {
                 break;
             }
-            let r = rng.next();
+            let r = rng.next_u64();
             let x = rect.x0 + (r % rw as u64) as usize;
             let y = rect.y0 + ((r >> 32) % rh as u64) as usize;
             let q = y * l.w + x;
@@ -810,7 +784,7 @@ fn build_sources(
         }
         if p.max_sources > 0 && positions.len() > p.max_sources {
             for k in 0..p.max_sources {
-                let j = k + (rng.next() % (positions.len() - k) as u64) as usize;
+                let j = k + (rng.next_u64() % (positions.len() - k) as u64) as usize;
                 positions.swap(k, j);
             }
             positions.truncate(p.max_sources);

@@ -1,0 +1,231 @@
+//! The texels of an atlas page: which face owns each texel and each face's triangle in texel
+//! coordinates, and the samples along chart borders. Built once per atlas ([`super::Atlas`])
+//! and read by every stage that works on texels (resampling, merging, levelling, seams).
+
+use crate::error::{Error, Result};
+use crate::mesh::{FaceId, Mesh};
+use nalgebra::Vector2;
+use rayon::prelude::*;
+use std::collections::HashMap;
+
+/// Rows of the atlas processed together by one thread.
+pub(crate) const BAND: usize = 16;
+
+/// A face's triangle in texel coordinates and what the per-texel work needs of it.
+pub(crate) struct FaceRaster {
+    /// Corners (x right, y down), texel centres at +0.5.
+    pub(crate) t: [Vector2<f64>; 3],
+    /// Twice the signed area.
+    pub(crate) area2: f64,
+    /// Texel rows spanned (inclusive), conservatively.
+    pub(crate) rows: (usize, usize),
+    /// Texel columns spanned (inclusive), conservatively.
+    pub(crate) cols: (usize, usize),
+    /// 3D length of one texel on this face.
+    pub(crate) texel_len: f64,
+}
+
+impl FaceRaster {
+    /// Barycentrics of the texel centre (x, y), unclamped.
+    pub(crate) fn bary(&self, x: usize, y: usize) -> [f64; 3] {
+        let p = Vector2::new(x as f64 + 0.5, y as f64 + 0.5);
+        let [a, b, c] = &self.t;
+        let cross = |u: Vector2<f64>, v: Vector2<f64>| u.x * v.y - u.y * v.x;
+        let wa = cross(b - p, c - p) / self.area2;
+        let wb = cross(c - p, a - p) / self.area2;
+        [wa, wb, 1.0 - wa - wb]
+    }
+
+    /// Signed distances (texels) from the centre (x, y) to the three edge lines, positive
+    /// inside.
+    pub(crate) fn edge_distances(&self, x: usize, y: usize) -> [f64; 3] {
+        let b = self.bary(x, y);
+        let [a, bb, c] = &self.t;
+        let len = [(c - bb).norm(), (a - c).norm(), (bb - a).norm()];
+        std::array::from_fn(|k| b[k] * self.area2.abs() / len[k].max(1e-300))
+    }
+}
+
+/// Which face owns each texel: the face containing the texel centre (the first by index on a
+/// shared edge); texels a face merely touches (within 0.75 texel of it) go to the first such
+/// face if no centre lies in them, so chart borders are coloured from their own triangles.
+pub(crate) struct TexelMap {
+    pub(crate) size: usize,
+    pub(crate) faces: Vec<Option<FaceRaster>>,
+    /// Faces overlapping each band, by index.
+    pub(crate) bands: Vec<Vec<u32>>,
+    pub(crate) owner: Vec<u32>,
+}
+
+pub(crate) const NO_FACE: u32 = u32::MAX;
+
+impl TexelMap {
+    pub(crate) fn new(mesh: &Mesh, size: u32) -> Result<Self> {
+        let uv = mesh
+            .uv
+            .as_ref()
+            .ok_or_else(|| Error::Invalid("resampling needs a mesh with an atlas".into()))?;
+        let s = size as f64;
+        let n = size as usize;
+        let faces: Vec<Option<FaceRaster>> = (0..mesh.num_faces())
+            .into_par_iter()
+            .map(|f| {
+                let c = uv.faces[f];
+                let t: [Vector2<f64>; 3] = std::array::from_fn(|k| {
+                    let q = uv.coords[c[k] as usize];
+                    Vector2::new(q.x as f64 * s, (1.0 - q.y as f64) * s)
+                });
+                let cross = |u: Vector2<f64>, v: Vector2<f64>| u.x * v.y - u.y * v.x;
+                let area2 = cross(t[1] - t[0], t[2] - t[0]);
+                if area2.abs() < 1e-12 || t.iter().any(|p| !p.x.is_finite() || !p.y.is_finite()) {
+                    return None;
+                }
+                let lo = t[0].inf(&t[1]).inf(&t[2]);
+                let hi = t[0].sup(&t[1]).sup(&t[2]);
+                if hi.x < 0.0 || hi.y < 0.0 || lo.x > s || lo.y > s {
+                    return None; // another page
+                }
+                let clamp = |v: f64| v.clamp(0.0, s - 1.0) as usize;
+                let a3 = mesh.face_area(FaceId(f as u32));
+                Some(FaceRaster {
+                    t,
+                    area2,
+                    rows: (clamp(lo.y - 1.0), clamp(hi.y + 1.0)),
+                    cols: (clamp(lo.x - 1.0), clamp(hi.x + 1.0)),
+                    texel_len: (a3 / (0.5 * area2.abs())).sqrt(),
+                })
+            })
+            .collect();
+        let mut bands: Vec<Vec<u32>> = vec![Vec::new(); n.div_ceil(BAND)];
+        for (f, r) in faces.iter().enumerate() {
+            if let Some(r) = r {
+                for band in bands
+                    .iter_mut()
+                    .take(r.rows.1 / BAND + 1)
+                    .skip(r.rows.0 / BAND)
+                {
+                    band.push(f as u32);
+                }
+            }
+        }
+        let mut owner = vec![NO_FACE; n * n];
+        owner
+            .par_chunks_mut(BAND * n)
+            .zip(bands.par_iter())
+            .enumerate()
+            .for_each(|(bi, (rows, list))| {
+                let y0 = bi * BAND;
+                let y1 = y0 + rows.len() / n;
+                for conservative in [false, true] {
+                    for &f in list {
+                        let r = faces[f as usize].as_ref().expect("listed faces rasterise");
+                        for y in r.rows.0.max(y0)..=r.rows.1.min(y1 - 1) {
+                            for x in r.cols.0..=r.cols.1 {
+                                let o = &mut rows[(y - y0) * n + x];
+                                if *o != NO_FACE {
+                                    continue;
+                                }
+                                let inside = if conservative {
+                                    r.edge_distances(x, y).iter().all(|&d| d >= -0.75)
+                                } else {
+                                    r.bary(x, y).iter().all(|&b| b >= 0.0)
+                                };
+                                if inside {
+                                    *o = f;
+                                }
+                            }
+                        }
+                    }
+                }
+            });
+        Ok(TexelMap {
+            size: n,
+            faces,
+            bands,
+            owner,
+        })
+    }
+}
+
+/// One sample along a chart border: the shared 3D edge `a`-`b` read on both of its faces.
+pub(crate) struct BorderSample {
+    /// The two faces.
+    pub faces: [usize; 2],
+    /// Per side, the texture-coordinate indices of `a` and `b`.
+    pub uv: [[u32; 2]; 2],
+    /// Position along the edge from `a` (0) to `b` (1).
+    pub t: f64,
+    /// Per side, the point on the edge (texel coordinates: x right, y down).
+    pub at: [Vector2<f64>; 2],
+    /// Per side, the unit step into its face, perpendicular to the edge.
+    pub inward: [Vector2<f64>; 2],
+}
+
+/// Samples along every mesh edge where two charts meet (the same 3D edge with different
+/// texture coordinates on its two faces, both on an `n`-texel page), one per texel of edge
+/// length.
+pub(crate) fn border_samples(mesh: &Mesh, n: usize) -> Vec<BorderSample> {
+    let Some(uv) = &mesh.uv else {
+        return Vec::new();
+    };
+    let s = n as f64;
+    let texel = |c: u32| {
+        let q = uv.coords[c as usize];
+        Vector2::new(q.x as f64 * s, (1.0 - q.y as f64) * s)
+    };
+    let on_page = |p: Vector2<f64>| p.x >= 0.0 && p.y >= 0.0 && p.x <= s && p.y <= s;
+    let inward = |a: Vector2<f64>, b: Vector2<f64>, o: Vector2<f64>| {
+        let e = (b - a).try_normalize(1e-12)?;
+        let nrm = Vector2::new(-e.y, e.x);
+        Some(if nrm.dot(&(o - a)) >= 0.0 { nrm } else { -nrm })
+    };
+    // Each undirected edge: its first face and corner indices.
+    let mut first: HashMap<(u32, u32), (usize, usize)> = HashMap::new();
+    let mut out = Vec::new();
+    for (f, fv) in mesh.faces.iter().enumerate() {
+        for k in 0..3 {
+            let (a, b) = (fv[k].0, fv[(k + 1) % 3].0);
+            let key = (a.min(b), a.max(b));
+            let Some(&(g, gk)) = first.get(&key) else {
+                first.insert(key, (f, k));
+                continue;
+            };
+            // Texture coordinates of a then b on a face, and its third corner.
+            let side = |face: usize, corner: usize| {
+                let c = uv.faces[face];
+                let (ca, cb) = (c[corner], c[(corner + 1) % 3]);
+                let ab = if mesh.faces[face][corner].0 == a {
+                    [ca, cb]
+                } else {
+                    [cb, ca]
+                };
+                (ab, c[(corner + 2) % 3])
+            };
+            let (i1, o1) = side(f, k);
+            let (i2, o2) = side(g, gk);
+            if i1 == i2 {
+                continue; // not a border: the same texture coordinates on both faces
+            }
+            let (a1, b1, a2, b2) = (texel(i1[0]), texel(i1[1]), texel(i2[0]), texel(i2[1]));
+            let (p1, p2) = (texel(o1), texel(o2));
+            if ![a1, b1, p1, a2, b2, p2].into_iter().all(on_page) {
+                continue;
+            }
+            let (Some(n1), Some(n2)) = (inward(a1, b1, p1), inward(a2, b2, p2)) else {
+                continue;
+            };
+            let m = ((b1 - a1).norm().max((b2 - a2).norm()).ceil() as usize).max(1);
+            for j in 0..m {
+                let t = (j as f64 + 0.5) / m as f64;
+                out.push(BorderSample {
+                    faces: [f, g],
+                    uv: [i1, i2],
+                    t,
+                    at: [a1 + (b1 - a1) * t, a2 + (b2 - a2) * t],
+                    inward: [n1, n2],
+                });
+            }
+        }
+    }
+    out
+}

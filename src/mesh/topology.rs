@@ -1,0 +1,85 @@
+//! Connectivity of a mesh, in one place: disjoint sets (components, UV islands, holes) and
+//! vertex one-rings.
+
+use super::Mesh;
+
+/// Each vertex's one-ring: the vertices it shares an edge with, sorted, without repeats.
+pub fn one_rings(mesh: &Mesh) -> Vec<Vec<u32>> {
+    let mut nbr: Vec<Vec<u32>> = vec![Vec::new(); mesh.num_vertices()];
+    for f in &mesh.faces {
+        for k in 0..3 {
+            let (a, b) = (f[k].0, f[(k + 1) % 3].0);
+            nbr[a as usize].push(b);
+            nbr[b as usize].push(a);
+        }
+    }
+    for n in &mut nbr {
+        n.sort_unstable();
+        n.dedup();
+    }
+    nbr
+}
+
+/// Disjoint sets with path halving and union by size.
+pub struct UnionFind {
+    parent: Vec<u32>,
+    size: Vec<u32>,
+}
+
+impl UnionFind {
+    /// `n` singleton sets.
+    pub fn new(n: usize) -> Self {
+        UnionFind {
+            parent: (0..n as u32).collect(),
+            size: vec![1; n],
+        }
+    }
+
+    /// The representative of `x`'s set.
+    pub fn find(&mut self, mut x: usize) -> usize {
+        while self.parent[x] as usize != x {
+            let p = self.parent[x] as usize;
+            self.parent[x] = self.parent[p];
+            x = self.parent[x] as usize;
+        }
+        x
+    }
+
+    /// Joins the sets of `a` and `b`.
+    pub fn union(&mut self, a: usize, b: usize) {
+        let (mut a, mut b) = (self.find(a), self.find(b));
+        if a == b {
+            return;
+        }
+        if self.size[a] < self.size[b] {
+            std::mem::swap(&mut a, &mut b);
+        }
+        self.parent[b] = a as u32;
+        self.size[a] += self.size[b];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn one_rings_of_two_triangles() {
+        let m = Mesh {
+            positions: vec![nalgebra::Point3::origin(); 4],
+            faces: [[0, 1, 2], [2, 1, 3]]
+                .iter()
+                .map(|f| f.map(crate::mesh::VertexId))
+                .collect(),
+            ..Default::default()
+        };
+        assert_eq!(
+            one_rings(&m),
+            vec![vec![1, 2], vec![0, 2, 3], vec![0, 1, 3], vec![1, 2]]
+        );
+        let mut u = UnionFind::new(4);
+        u.union(0, 3);
+        assert_eq!(u.find(3), u.find(0));
+        assert_ne!(u.find(1), u.find(0));
+    }
+}
