@@ -216,38 +216,50 @@ pub const DEPTH_RESOLUTION_RANGE: std::ops::RangeInclusive<u32> = 64..=16384;
 impl BindOptions {
     /// Checks ranges; the error names the option.
     pub fn validate(&self) -> Result<()> {
-        let bad = |m: String| Err(Error::Invalid(m));
+        let bad = |o: &'static str, m: String| Err(Error::option(o, m));
         if !(-1.0..1.0).contains(&self.min_cos) {
-            return bad(format!("min-cos {} must lie in [-1, 1)", self.min_cos));
+            return bad("min_cos", format!("{} must lie in [-1, 1)", self.min_cos));
         }
         if !(self.background_threshold >= 0.0 && self.background_threshold.is_finite()) {
-            return bad(format!(
-                "background threshold {} must be a non-negative number",
-                self.background_threshold
-            ));
+            return bad(
+                "background_threshold",
+                format!(
+                    "background threshold {} must be a non-negative number",
+                    self.background_threshold
+                ),
+            );
         }
         if let Background::Color(c) = self.background {
             if !c.iter().all(|v| (0.0..=1.0).contains(v)) {
-                return bad(format!("background colour {c:?} must lie in [0, 1]"));
+                return bad(
+                    "background",
+                    format!("background colour {c:?} must lie in [0, 1]"),
+                );
             }
         }
         if !(self.consistency_threshold >= 0.0 && self.consistency_threshold.is_finite()) {
-            return bad(format!(
-                "consistency threshold {} must be a non-negative number",
-                self.consistency_threshold
-            ));
+            return bad(
+                "consistency_threshold",
+                format!(
+                    "consistency threshold {} must be a non-negative number",
+                    self.consistency_threshold
+                ),
+            );
         }
         if !WEIGHT_POWER_RANGE.contains(&self.weight_power) {
-            return bad(format!(
-                "weight power {} must lie in [0, 8]",
-                self.weight_power
-            ));
+            return bad(
+                "weight_power",
+                format!("weight power {} must lie in [0, 8]", self.weight_power),
+            );
         }
         if !DEPTH_RESOLUTION_RANGE.contains(&self.depth_resolution) {
-            return bad(format!(
-                "depth resolution {} must lie in 64..=16384",
-                self.depth_resolution
-            ));
+            return bad(
+                "depth_resolution",
+                format!(
+                    "depth resolution {} must lie in 64..=16384",
+                    self.depth_resolution
+                ),
+            );
         }
         Ok(())
     }

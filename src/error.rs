@@ -53,6 +53,18 @@ pub enum Error {
     /// image that references a camera that does not exist, ...).
     #[error("{0}")]
     Invalid(String),
+    /// An option's value is out of range. `option` is the field of the options struct, which
+    /// the command line spells with hyphens (`max_hole` is `--max-hole`).
+    #[error("option --{}: {msg}", .option.replace('_', "-"))]
+    BadOption {
+        /// The option's field name.
+        option: &'static str,
+        /// What is wrong with its value.
+        msg: String,
+    },
+    /// A check of scantex's own invariants failed: a bug in scantex, not a fault of the input.
+    #[error("internal error (a bug in scantex; please report it): {0}")]
+    Internal(String),
 }
 
 /// Shorthand used throughout the crate.
@@ -72,6 +84,14 @@ impl Error {
         Error::Parse {
             path: path.as_ref().to_path_buf(),
             location,
+            msg: msg.into(),
+        }
+    }
+
+    /// An out-of-range value of the option `option` (a field name of an options struct).
+    pub fn option(option: &'static str, msg: impl Into<String>) -> Self {
+        Error::BadOption {
+            option,
             msg: msg.into(),
         }
     }

@@ -11,7 +11,10 @@ use std::process::ExitCode;
 #[command(
     name = "scantex",
     version,
-    about = "Texture atlases for 3D-scanned objects from calibrated photographs"
+    about = "Texture atlases for 3D-scanned objects from calibrated photographs",
+    after_help = "Exit status: 0 done; 1 bad input or option value (the message names the file, \
+                  line or element); 2 usage error; 3 internal error (a bug: please report it); \
+                  128 + N stopped by signal N (nothing half-written is left)."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -549,7 +552,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
                 .transpose()?;
             let report =
                 scantex::eval::evaluate_scene(&textured, &scene.spec(), &EvalOptions { gain_fit })?;
-            print!("{report}");
+            print_out(&report.to_string());
             if let (Some(p), Some(mut staged)) = (json, staged) {
                 let s = serde_json::to_string_pretty(&report).expect("report serialises");
                 staged.write(&p, s.as_bytes())?;
@@ -675,39 +678,21 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             texel_density,
             uniform_density,
         } => {
-            let stem = out
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default();
-            let layout = out.with_file_name(format!("{stem}_layout.png"));
-            let mut dirs = vec![parent_dir(&out)];
-            dirs.extend(report.as_deref().map(parent_dir));
-            let label = scantex::io::staging::label_of(&out);
-            let mut staged = scantex::io::Staged::begin(&label, &dirs)?;
-            let (input, _) = scantex::io::read_mesh(&mesh)?;
             let mut opts = scantex::atlas::AtlasOptions::default();
             atlas.apply(&mut opts);
             opts.flatten.stretch.view_dir = view_dir.map(nalgebra::Vector3::from);
             opts.pack.texels_per_unit = texel_density;
             opts.budget_by_energy = !uniform_density;
-            let (out_mesh, rep) = scantex::atlas::parameterize(&input, &opts)?;
-            let picture = scantex::atlas::layout_picture(&out_mesh, atlas.size.min(2048));
-            let png = scantex::io::image::encode_png(&image::DynamicImage::ImageRgb8(picture))?;
-            scantex::io::stage_mesh(&mut staged, &out, &out_mesh, None)?;
-            staged.write(&layout, &png.bytes)?;
+            let rep = scantex::pipeline::param_file(&mesh, &out, report.as_deref(), &opts)?;
             let json = serde_json::to_string_pretty(&rep).expect("report serialises");
-            if let Some(p) = report {
-                staged.write(&p, json.as_bytes())?;
-            }
-            staged.commit()?;
-            println!("{json}");
+            print_out(&format!("{json}\n"));
             Ok(ExitCode::SUCCESS)
         }
         Command::UvReport { mesh, size } => {
             let (input, _) = scantex::io::read_mesh(&mesh)?;
             let rep = scantex::atlas::measure(&input, size)?;
             let json = serde_json::to_string_pretty(&rep).expect("report serialises");
-            println!("{json}");
+            print_out(&format!("{json}\n"));
             Ok(ExitCode::SUCCESS)
         }
         Command::Sample {
@@ -781,10 +766,10 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             let (restored, report) = scantex::restore::inpaint(&img, &m, None, &opts)?;
             scantex::io::image::stage_planar(staged, &out, &restored, depth)?;
             if json {
-                println!(
-                    "{}",
+                print_out(&format!(
+                    "{}\n",
                     serde_json::to_string_pretty(&report).expect("report serialises")
-                );
+                ));
             } else {
                 eprintln!(
                     "filled {} pixels (kappa {}{}) in {:.2} s; wrote {}",
@@ -801,12 +786,12 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             let scene = Scene::load(&scene.spec())?;
             let report = scantex::info::info(&scene);
             if json {
-                println!(
-                    "{}",
+                print_out(&format!(
+                    "{}\n",
                     serde_json::to_string_pretty(&report).expect("report serialises")
-                );
+                ));
             } else {
-                print!("{report}");
+                print_out(&report.to_string());
             }
             // Missing or broken photographs make the scene unusable for texturing: say so in
             // the exit code so batch jobs stop here. The report already probed every photo;
@@ -848,6 +833,25 @@ fn remove_outputs_on_signals() {
     }
 }
 
+/// Exit status for bad input or option values (the library's errors other than internal ones).
+const EXIT_INPUT: u8 = 1;
+/// Exit status for a failed internal check: a bug in scantex, not in the input.
+const EXIT_INTERNAL: u8 = 3;
+
+/// Writes `text` to standard output. A closed pipe (`scantex info --json | head -1`) ends the
+/// program quietly with success: the reader has what it wanted.
+fn print_out(text: &str) {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    if let Err(e) = out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+        if e.kind() == std::io::ErrorKind::BrokenPipe {
+            std::process::exit(0);
+        }
+        eprintln!("scantex: error: cannot write to standard output: {e}");
+        std::process::exit(EXIT_INPUT.into());
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     remove_outputs_on_signals();
@@ -855,7 +859,10 @@ fn main() -> ExitCode {
         Ok(code) => code,
         Err(e) => {
             eprintln!("scantex: error: {e}");
-            ExitCode::FAILURE
+            ExitCode::from(match e {
+                scantex::Error::Internal(_) => EXIT_INTERNAL,
+                _ => EXIT_INPUT,
+            })
         }
     }
 }

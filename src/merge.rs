@@ -169,22 +169,31 @@ impl MergeOptions {
     /// Checks the ranges; the error names the option.
     pub fn validate(&self) -> Result<()> {
         if !LEVELS_RANGE.contains(&self.levels) {
-            return Err(Error::Invalid(format!(
-                "merge levels = {} must lie in {LEVELS_RANGE:?}",
-                self.levels
-            )));
+            return Err(Error::option(
+                "levels",
+                format!(
+                    "merge levels = {} must lie in {LEVELS_RANGE:?}",
+                    self.levels
+                ),
+            ));
         }
         if self.fine_exponent.is_nan() || self.fine_exponent < 0.0 {
-            return Err(Error::Invalid(format!(
-                "fine exponent = {} must be 0 or more (inf: the best view alone)",
-                self.fine_exponent
-            )));
+            return Err(Error::option(
+                "fine_exponent",
+                format!(
+                    "fine exponent = {} must be 0 or more (inf: the best view alone)",
+                    self.fine_exponent
+                ),
+            ));
         }
         if !KERNEL_A_RANGE.contains(&self.a) {
-            return Err(Error::Invalid(format!(
-                "kernel weight a = {} must lie in [0.2, 0.5] (the kernel must stay positive)",
-                self.a
-            )));
+            return Err(Error::option(
+                "kernel_a",
+                format!(
+                    "kernel weight a = {} must lie in [0.2, 0.5] (the kernel must stay positive)",
+                    self.a
+                ),
+            ));
         }
         Ok(())
     }
@@ -1135,7 +1144,7 @@ pub fn relevel(
     let n = res.color.width() as usize;
     if n != atlas.size as usize {
         return Err(Error::Invalid(
-            "internal: levelling an atlas of another size".into(),
+            "levelling an atlas with the texels of another size".into(),
         ));
     }
     let own = |i: usize| atlas.owner(i);

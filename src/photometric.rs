@@ -103,18 +103,21 @@ impl Default for PhotometricOptions {
 impl PhotometricOptions {
     /// Checks ranges.
     pub fn validate(&self) -> crate::Result<()> {
-        let bad = |m: &str| Err(crate::Error::Invalid(m.into()));
+        let bad = |o: &'static str, m: &str| Err(crate::Error::option(o, m));
         if self.iterations == 0 || self.iterations > 100 {
-            return bad("photometric iterations must be in 1..=100");
+            return bad("iterations", "photometric iterations must be in 1..=100");
         }
         if !(self.ridge >= 0.0 && self.ridge.is_finite()) {
-            return bad("photometric ridge must be finite and >= 0");
+            return bad("ridge", "photometric ridge must be finite and >= 0");
         }
         if !(self.outlier_scale > 0.0 && self.outlier_scale.is_finite()) {
-            return bad("photometric outlier scale must be finite and > 0");
+            return bad(
+                "outlier_scale",
+                "photometric outlier scale must be finite and > 0",
+            );
         }
         if !(self.max_gain >= 1.0 && self.max_gain.is_finite()) {
-            return bad("photometric max gain must be finite and >= 1");
+            return bad("max_gain", "photometric max gain must be finite and >= 1");
         }
         Ok(())
     }

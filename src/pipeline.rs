@@ -236,6 +236,8 @@ pub struct Textured {
     pub mesh: Mesh,
     /// The resampled atlas and its per-texel bookkeeping.
     pub resampled: Resampled,
+    /// The unseen texels restoration left (none restored when restoration is off).
+    pub unrestored: Option<restore::Unrestored>,
     /// What happened.
     pub report: TextureReport,
 }
@@ -355,11 +357,11 @@ pub fn texture(
     )?;
     stages.push(stage_since("resample+merge", &mut t));
     let mut resampled = resampled;
-    let restore = match opts.restoration {
-        Restoration::Off => None,
+    let (restore, unrestored) = match opts.restoration {
+        Restoration::Off => (None, None),
         Restoration::Synthesis { options, max_hole } => {
             progress.start("restore", 1);
-            let r = restore::restore_atlas(
+            let (r, left) = restore::restore_atlas(
                 &mut resampled,
                 &options,
                 max_hole,
@@ -371,7 +373,7 @@ pub fn texture(
             }
             progress.finish();
             stages.push(stage_since("restore", &mut t));
-            Some(r)
+            (Some(r), Some(left))
         }
     };
     let seams = seam_visibility(
@@ -414,6 +416,7 @@ pub fn texture(
     Ok(Textured {
         mesh: m,
         resampled,
+        unrestored,
         report,
     })
 }
@@ -423,7 +426,8 @@ fn to_png8(img: &Rgb32FImage) -> Result<EncodedTexture> {
 }
 
 /// Writes `<dir>/model.obj` (+ `model.mtl`, `model.png|exr`), `model.glb`, `report.json`, and
-/// with `debug` the pictures `classes.png`, `coverage.png` and `layout.png` into that
+/// with `debug` the pictures `classes.png`, `coverage.png`, `masks.png` (the photograph whose
+/// mask wins each texel), `restore.png` (texels restored and left) and `layout.png` into that
 /// directory. Every file appears at once or none does.
 pub fn write_outputs(
     dir: &Path,
@@ -480,6 +484,11 @@ fn write_staged(
         for (name, pic) in [
             ("classes.png", r.class_picture()),
             ("coverage.png", r.coverage_picture()),
+            ("masks.png", r.best_photo_picture()),
+            (
+                "restore.png",
+                restore::picture(r, result.unrestored.as_ref()),
+            ),
             (
                 "layout.png",
                 atlas::layout_picture(&result.mesh, size.min(4096)),
@@ -490,7 +499,7 @@ fn write_staged(
         }
     }
     let json = serde_json::to_vec_pretty(&result.report)
-        .map_err(|e| Error::Invalid(format!("cannot serialise the report: {e}")))?;
+        .map_err(|e| Error::Internal(format!("cannot serialise the report: {e}")))?;
     staged.write(&dir.join("report.json"), &json)?;
     staged.commit()
 }
@@ -533,4 +542,44 @@ pub fn texture_scene(
     result.report.warnings = warnings;
     write_staged(staged, out, &result, opts.format, debug)?;
     Ok(result)
+}
+
+/// The whole `scantex param` job: reads `mesh`, gives it an atlas (stage 1 alone) and writes
+/// the mesh with UVs to `out` (OBJ, PLY or GLB by extension), a layout picture beside it as
+/// `<stem>_layout.png` (at most 2048 pixels) and, if asked, the report as JSON to `report`.
+/// Every file appears at once or none does. Returns the report.
+pub fn param_file(
+    mesh: &Path,
+    out: &Path,
+    report: Option<&Path>,
+    opts: &AtlasOptions,
+) -> Result<AtlasReport> {
+    let parent = |p: &'_ Path| -> std::path::PathBuf {
+        match p.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+            _ => Path::new(".").to_path_buf(),
+        }
+    };
+    let stem = out
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let layout = out.with_file_name(format!("{stem}_layout.png"));
+    let mut dirs = vec![parent(out)];
+    dirs.extend(report.map(parent));
+    let dirs: Vec<&Path> = dirs.iter().map(|d| d.as_path()).collect();
+    let mut staged = Staged::begin(&io::staging::label_of(out), &dirs)?;
+    let (input, _) = io::read_mesh(mesh)?;
+    let (out_mesh, rep) = atlas::parameterize(&input, opts)?;
+    let picture = atlas::layout_picture(&out_mesh, opts.pack.size.min(2048));
+    let png = io::image::encode_png(&DynamicImage::ImageRgb8(picture))?;
+    io::stage_mesh(&mut staged, out, &out_mesh, None)?;
+    staged.write(&layout, &png.bytes)?;
+    if let Some(p) = report {
+        let json = serde_json::to_vec_pretty(&rep)
+            .map_err(|e| Error::Internal(format!("cannot serialise the report: {e}")))?;
+        staged.write(p, &json)?;
+    }
+    staged.commit()?;
+    Ok(rep)
 }

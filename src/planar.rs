@@ -1,5 +1,6 @@
-//! The float image that restoration and `scantex inpaint` work on, read and written by
-//! [`crate::io::image`]: a foundation type, so that reading images does not depend on a stage.
+//! Raster types of the foundation: the float image that restoration and `scantex inpaint` work
+//! on (read and written by [`crate::io::image`], so that reading images does not depend on a
+//! stage), and a bit per texel for the masks stages hand on.
 
 /// An image of `channels` interleaved float channels (1 = grey, 3 = RGB), row-major.
 #[derive(Debug, Clone, PartialEq)]
@@ -12,4 +13,47 @@ pub struct Image {
     pub channels: usize,
     /// `width * height * channels` values, nominally in [0, 1].
     pub data: Vec<f32>,
+}
+
+/// One bit per element (texel), row-major: the masks stages hand forward.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct BitMask {
+    bits: Vec<u64>,
+    len: usize,
+}
+
+impl BitMask {
+    /// `len` clear bits.
+    pub fn new(len: usize) -> Self {
+        BitMask {
+            bits: vec![0; len.div_ceil(64)],
+            len,
+        }
+    }
+
+    /// Number of elements.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether there are no elements.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Sets element `i`.
+    pub fn set(&mut self, i: usize) {
+        self.bits[i / 64] |= 1 << (i % 64);
+    }
+
+    /// Whether element `i` is set.
+    #[inline]
+    pub fn get(&self, i: usize) -> bool {
+        self.bits[i / 64] >> (i % 64) & 1 == 1
+    }
+
+    /// Number of set elements.
+    pub fn count(&self) -> usize {
+        self.bits.iter().map(|w| w.count_ones() as usize).sum()
+    }
 }

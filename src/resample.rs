@@ -157,6 +157,30 @@ impl Resampled {
         })
     }
 
+    /// The merge's masks as one picture: each texel in the colour of its best photograph (the
+    /// one whose mask wins it: hues spaced by the golden angle, photograph 0 red), black where
+    /// no photograph saw it.
+    pub fn best_photo_picture(&self) -> RgbImage {
+        let (w, h) = self.color.dimensions();
+        RgbImage::from_fn(w, h, |x, y| {
+            let p = self.best_photo[(y * w + x) as usize];
+            if p == NO_PHOTO {
+                return image::Rgb([0, 0, 0]);
+            }
+            let hue = (p as f32 * 0.618_034).fract() * 6.0;
+            let f = hue.fract();
+            let (a, b) = ((255.0 * (1.0 - f)) as u8, (255.0 * f) as u8);
+            image::Rgb(match hue as u32 {
+                0 => [255, b, 0],
+                1 => [a, 255, 0],
+                2 => [0, 255, b],
+                3 => [0, a, 255],
+                4 => [b, 0, 255],
+                _ => [255, 0, a],
+            })
+        })
+    }
+
     /// Coverage: grey by the number of photographs that coloured the texel (brighter = more,
     /// white at 8 or more), orange for chart texels no photograph saw, black outside charts.
     pub fn coverage_picture(&self) -> RgbImage {
@@ -570,8 +594,7 @@ impl<'a> Prepared<'a> {
             || atlas.face_chart.len() != mesh.num_faces()
         {
             return Err(Error::Invalid(
-                "internal: binding, normals and atlas must belong to the mesh being resampled"
-                    .into(),
+                "binding, normals and atlas must belong to the mesh being resampled".into(),
             ));
         }
         let bind_opts = &binding.options;

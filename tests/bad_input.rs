@@ -1224,3 +1224,77 @@ fn option_values_the_library_refuses_name_the_option() {
         &["--format", "unknown texture format 'webp'"],
     );
 }
+
+/// A reader that closes the pipe early (`scantex info --json | head -1`) ends the command
+/// quietly with success, not with a panic about a broken pipe.
+#[test]
+fn a_closed_stdout_pipe_ends_quietly() {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_scantex"))
+        .args(["info", "--json", "samples/torus"])
+        .current_dir(common::root())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Closed before the scene is loaded, so the report's first write meets a closed pipe.
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+    assert_eq!(out.status.code(), Some(0), "{err}");
+}
+
+/// `--help` shows the library's defaults (the command line takes them from the options'
+/// `Default`, not from literals of its own), and the exit codes.
+#[test]
+fn help_shows_the_library_defaults_and_exit_codes() {
+    let out = Command::new(env!("CARGO_BIN_EXE_scantex"))
+        .args(["texture", "--help"])
+        .output()
+        .unwrap();
+    let help = String::from_utf8_lossy(&out.stdout);
+    let b = scantex::bind::BindOptions::default();
+    let m = scantex::merge::MergeOptions::default();
+    let r = scantex::resample::ResampleOptions::default();
+    for (flag, value) in [
+        (
+            "--size",
+            scantex::atlas::AtlasOptions::default()
+                .pack
+                .size
+                .to_string(),
+        ),
+        ("--method", b.method.to_string()),
+        ("--background", b.background.to_string()),
+        (
+            "--consistency-threshold",
+            b.consistency_threshold.to_string(),
+        ),
+        ("--merge", m.merge.to_string()),
+        ("--levels", m.levels.to_string()),
+        ("--max-views", r.max_views.to_string()),
+        (
+            "--max-hole",
+            scantex::pipeline::Restoration::MAX_HOLE.to_string(),
+        ),
+    ] {
+        let at = help
+            .find(&format!("{flag} "))
+            .unwrap_or_else(|| panic!("{flag} in {help}"));
+        let rest = &help[at..];
+        let entry = &rest[..rest[2..].find("\n      --").map_or(rest.len(), |e| e + 2)];
+        assert!(
+            entry.contains(&format!("[default: {value}]")),
+            "{flag}: {entry}"
+        );
+    }
+    let top = Command::new(env!("CARGO_BIN_EXE_scantex"))
+        .arg("--help")
+        .output()
+        .unwrap();
+    let top = String::from_utf8_lossy(&top.stdout);
+    assert!(
+        top.contains("Exit status") && top.contains("3 internal error"),
+        "{top}"
+    );
+}

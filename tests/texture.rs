@@ -458,7 +458,13 @@ fn cli_texture_writes_every_output_and_a_texture_that_renders() {
     ] {
         assert!(out.join(f).is_file(), "{f} missing");
     }
-    for f in ["classes.png", "coverage.png", "layout.png"] {
+    for f in [
+        "classes.png",
+        "coverage.png",
+        "masks.png",
+        "restore.png",
+        "layout.png",
+    ] {
         assert!(debug.join(f).is_file(), "{f} missing");
     }
     let names: Vec<_> = std::fs::read_dir(&out)
@@ -477,6 +483,20 @@ fn cli_texture_writes_every_output_and_a_texture_that_renders() {
     ] {
         assert!(report.get(key).is_some(), "report lacks {key}");
     }
+    // restore.png accounts for what restoration reported: green restored, magenta left as too
+    // large, orange left unreachable.
+    let pic = image::open(debug.join("restore.png")).unwrap().into_rgb8();
+    let count = |c: [u8; 3]| pic.pixels().filter(|p| p.0 == c).count() as u64;
+    let r = &report["restore"];
+    assert_eq!(count([40, 200, 60]), r["texels"].as_u64().unwrap(), "{r}");
+    assert_eq!(
+        count([220, 40, 200]),
+        r["texels_left_large"].as_u64().unwrap()
+    );
+    assert_eq!(
+        count([240, 140, 20]),
+        r["texels_left_unreachable"].as_u64().unwrap()
+    );
     let atlas = image::open(out.join("model.png")).unwrap();
     assert_eq!(atlas.width(), 1024);
     // The GLB and the OBJ carry the same texture and render alike.

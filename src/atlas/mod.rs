@@ -299,35 +299,45 @@ impl AtlasOptions {
     /// Checks the options' ranges; the error says which option is out of range.
     pub fn validate(&self) -> crate::Result<()> {
         let s = &self.flatten.stretch;
-        let bad = |what: String| Err(crate::Error::Invalid(what));
+        let bad = |o: &'static str, what: String| Err(crate::Error::option(o, what));
         if !(s.k > 1.0 && s.k.is_finite()) {
-            return bad(format!("k = {} must exceed 1 (w = 1 / (<N, V> + k))", s.k));
+            return bad(
+                "k",
+                format!("k = {} must exceed 1 (w = 1 / (<N, V> + k))", s.k),
+            );
         }
         if !(0.0..0.5).contains(&s.alpha) {
-            return bad(format!("alpha = {} must lie in [0, 0.5)", s.alpha));
+            return bad("alpha", format!("alpha = {} must lie in [0, 0.5)", s.alpha));
         }
         if let Some(v) = s.view_dir {
             if !(v.iter().all(|x| x.is_finite()) && v.norm() > 0.0) {
-                return bad(format!(
-                    "view direction {v:?} must be a non-zero finite vector"
-                ));
+                return bad(
+                    "view_dir",
+                    format!("view direction {v:?} must be a non-zero finite vector"),
+                );
             }
         }
         if !SIZE_RANGE.contains(&self.pack.size) {
-            return bad(format!(
-                "atlas size {} must lie in {SIZE_RANGE:?}",
-                self.pack.size
-            ));
+            return bad(
+                "size",
+                format!("atlas size {} must lie in {SIZE_RANGE:?}", self.pack.size),
+            );
         }
         if 2 * self.pack.gutter + 1 >= self.pack.size {
-            return bad(format!(
-                "gutter {} leaves no room in a {}-texel atlas",
-                self.pack.gutter, self.pack.size
-            ));
+            return bad(
+                "gutter",
+                format!(
+                    "gutter {} leaves no room in a {}-texel atlas",
+                    self.pack.gutter, self.pack.size
+                ),
+            );
         }
         if let Some(d) = self.pack.texels_per_unit {
             if !(d.is_finite() && d > 0.0) {
-                return bad(format!("texel density {d} must be a positive number"));
+                return bad(
+                    "texel_density",
+                    format!("texel density {d} must be a positive number"),
+                );
             }
         }
         Ok(())

@@ -302,7 +302,7 @@ pub fn encode_png(img: &DynamicImage) -> Result<EncodedTexture> {
         &mut std::io::Cursor::new(&mut bytes),
         image::ImageFormat::Png,
     )
-    .map_err(|e| Error::Invalid(format!("cannot encode PNG: {e}")))?;
+    .map_err(|e| Error::Internal(format!("cannot encode PNG: {e}")))?;
     Ok(EncodedTexture {
         bytes,
         mime: "image/png",
@@ -318,7 +318,7 @@ pub fn encode_exr(img: &Rgb32FImage) -> Result<EncodedTexture> {
             &mut std::io::Cursor::new(&mut bytes),
             image::ImageFormat::OpenExr,
         )
-        .map_err(|e| Error::Invalid(format!("cannot encode EXR: {e}")))?;
+        .map_err(|e| Error::Internal(format!("cannot encode EXR: {e}")))?;
     Ok(EncodedTexture {
         bytes,
         mime: "image/x-exr",

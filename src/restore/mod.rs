@@ -15,7 +15,20 @@ use rayon::prelude::*;
 use serde::Serialize;
 use std::time::Instant;
 
+use crate::planar::BitMask;
 pub use crate::planar::Image;
+
+/// The unseen texels restoration did not fill, handed on for exemplar synthesis (stage 6) and
+/// drawn by `--debug-dir` (`restore.png`). One bit per atlas texel, row-major.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Unrestored {
+    /// Atlas side in texels.
+    pub size: usize,
+    /// Texels of unseen regions larger than `max_hole`: they keep their vertex colours.
+    pub too_large: BitMask,
+    /// Unseen texels of charts no photograph saw at all: nothing in 2D to restore them from.
+    pub unreachable: BitMask,
+}
 
 /// How the high band's nearest neighbours are found.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Default)]
@@ -162,32 +175,42 @@ impl RestoreOptions {
     /// Checks ranges.
     pub fn validate(&self) -> Result<()> {
         if !LEVELS_RANGE.contains(&self.levels) {
-            return Err(Error::Invalid(format!(
-                "restoration levels must be 1 to 8, not {}",
-                self.levels
-            )));
+            return Err(Error::option(
+                "levels",
+                format!("restoration levels must be 1 to 8, not {}", self.levels),
+            ));
         }
         if !(self.coherence.is_finite() && self.coherence >= 0.0) {
-            return Err(Error::Invalid(format!(
-                "the coherence parameter must be a finite number >= 0, not {}",
-                self.coherence
-            )));
+            return Err(Error::option(
+                "coherence",
+                format!(
+                    "the coherence parameter must be a finite number >= 0, not {}",
+                    self.coherence
+                ),
+            ));
         }
         if !(self.kappa_threshold.is_finite() && self.kappa_threshold > 0.0) {
-            return Err(Error::Invalid(format!(
-                "the kappa threshold must be > 0, not {}",
-                self.kappa_threshold
-            )));
+            return Err(Error::option(
+                "kappa_threshold",
+                format!(
+                    "the kappa threshold must be > 0, not {}",
+                    self.kappa_threshold
+                ),
+            ));
         }
         if !(0.0..=1.0).contains(&self.mean_from_diffusion) {
-            return Err(Error::Invalid(format!(
-                "the weight of the diffused local mean must be 0 to 1, not {}",
-                self.mean_from_diffusion
-            )));
+            return Err(Error::option(
+                "mean_from_diffusion",
+                format!(
+                    "the weight of the diffused local mean must be 0 to 1, not {}",
+                    self.mean_from_diffusion
+                ),
+            ));
         }
         if self.method == Method::Fast && self.max_sources == 0 {
-            return Err(Error::Invalid(
-                "the fast method needs at least one source texel per tree".into(),
+            return Err(Error::option(
+                "max_sources",
+                "the fast method needs at least one source texel per tree",
             ));
         }
         Ok(())
@@ -503,15 +526,40 @@ fn match_detail(
     total
 }
 
+/// What stage 5 did to each texel: grey where photographs coloured it, green where it was
+/// restored, magenta where it was left for being part of a region larger than `max_hole`,
+/// orange where its chart had no seen texel (or restoration did not run: `left` is `None`),
+/// black outside the charts.
+pub fn picture(res: &crate::resample::Resampled, left: Option<&Unrestored>) -> image::RgbImage {
+    use crate::resample::TexelSource as S;
+    let (w, h) = res.color.dimensions();
+    image::RgbImage::from_fn(w, h, |x, y| {
+        let i = (y * w + x) as usize;
+        let s = res.source[i];
+        image::Rgb(if s == S::Photos as u8 {
+            [110, 110, 110]
+        } else if s == S::GreenFallback as u8 || s == S::Blue as u8 || s == S::Red as u8 {
+            match left {
+                Some(l) if l.too_large.get(i) => [220, 40, 200],
+                Some(l) if !l.unreachable.get(i) => [40, 200, 60],
+                _ => [240, 140, 20],
+            }
+        } else {
+            [0, 0, 0]
+        })
+    })
+}
+
 /// Stage 5 on the atlas: fills the texels the merge marked as seen by no photograph (green
 /// fallback, blue and red triangles), reading chart texels only, then extends the charts into
-/// the gutter again so that filtering never pulls in the old fill.
+/// the gutter again so that filtering never pulls in the old fill. Returns what it did and the
+/// unseen texels it left.
 pub fn restore_atlas(
     res: &mut crate::resample::Resampled,
     opts: &RestoreOptions,
     max_hole: usize,
     gutter_fill: u32,
-) -> Result<RestoreReport> {
+) -> Result<(RestoreReport, Unrestored)> {
     use crate::resample::TexelSource as S;
     let n = res.color.width() as usize;
     let unseen = |s: u8| s == S::GreenFallback as u8 || s == S::Blue as u8 || s == S::Red as u8;
@@ -531,9 +579,15 @@ pub fn restore_atlas(
     let mut mask: Vec<bool> = (0..n * n)
         .map(|i| unseen(res.source[i]) && reach[i] != u8::MAX)
         .collect();
-    let texels_left_unreachable = (0..n * n)
-        .filter(|&i| unseen(res.source[i]) && reach[i] == u8::MAX)
-        .count() as u64;
+    let mut left = Unrestored {
+        size: n,
+        too_large: BitMask::new(n * n),
+        unreachable: BitMask::new(n * n),
+    };
+    for i in (0..n * n).filter(|&i| unseen(res.source[i]) && reach[i] == u8::MAX) {
+        left.unreachable.set(i);
+    }
+    let texels_left_unreachable = left.unreachable.count() as u64;
     drop(reach);
     // Large unseen regions are exemplar synthesis's (stage 6): pixel-by-pixel synthesis of a
     // region of a million texels is one long sequential walk, and its 2D neighbourhood is the
@@ -546,6 +600,7 @@ pub fn restore_atlas(
                 left_large += comp.len() as u64;
                 for &i in comp {
                     mask[i] = false;
+                    left.too_large.set(i);
                 }
                 false
             } else {
@@ -667,7 +722,7 @@ pub fn restore_atlas(
     report.texels_left_unreachable = texels_left_unreachable;
     res.color = image::Rgb32FImage::from_raw(n as u32, n as u32, data).expect("n * n * 3 values");
     crate::resample::refill_gutter(res, gutter_fill);
-    Ok(report)
+    Ok((report, left))
 }
 
 /// Texels over which restored atlas values fade into the vertex colours at a chart border.
