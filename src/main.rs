@@ -1,4 +1,6 @@
-//! The `scantex` command: parses arguments, calls the library, reports errors.
+//! The `scantex` command: parses arguments, calls the library, reports errors. Most of its
+//! length is the argument definitions with their help text (every option of every command);
+//! the commands' work is in the library.
 
 use clap::{Args, Parser, Subcommand};
 use scantex::eval::EvalOptions;

@@ -1,7 +1,9 @@
 //! `scantex texture`: the stages in order, with timings, peak memory and the outputs.
 //!
-//! mesh + photographs -> [`atlas::parameterize`] -> [`bind::bind`] -> [`resample::resample`]
-//! -> [`merge::merge`] -> [`restore::restore_atlas`] -> textured mesh.
+//! mesh + photographs -> [`atlas::build`] beside [`bind::bind`] -> [`photometric::normalise`]
+//! -> [`merge::merge`] (stage 3, [`crate::resample::resample`], inside) ->
+//! [`restore::restore_atlas`] -> textured mesh. The [`atlas::Atlas`] is built once and borrowed
+//! by every later stage.
 
 use crate::atlas::{self, AtlasOptions, AtlasReport};
 use crate::bind::{self, BindOptions, Rejections};

@@ -1,4 +1,6 @@
 //! COLMAP sparse models (`cameras`, `images`, `points3D`) in text and binary, read and written.
+//! One file for one format: the text and binary readers and writers of the three files share
+//! their records and checks, which is what makes it longer than 800 lines.
 //!
 //! Formats as COLMAP writes them (`src/colmap/scene/reconstruction_io.cc`): little-endian binary
 //! with `u64` counts, NUL-terminated image names and `u64::MAX` for "no 3D point"; text with

@@ -1,0 +1,546 @@
+//! Sampling one photograph into the atlas: the per-face work shared by every way of combining
+//! photographs ([`Prepared`]), a photograph made ready to sample ([`PhotoSampler`]: projected
+//! vertices, depth map, mip pyramid) and the per-texel sampling through per-face affine maps.
+
+use super::*;
+
+/// Clamps barycentrics to the triangle (texels just outside it, owned conservatively).
+pub(super) fn clamp_bary(b: [f64; 3]) -> [f64; 3] {
+    let c = b.map(|v| v.max(0.0));
+    let s: f64 = c.iter().sum();
+    if s > 0.0 {
+        c.map(|v| v / s)
+    } else {
+        [1.0 / 3.0; 3]
+    }
+}
+
+/// A photograph as a mip chain (2x2 box filter), for samples whose footprint spans several
+/// pixels. The base stays as decoded (8-bit photographs a quarter of the memory of floats);
+/// the levels below it are floats.
+pub(super) struct PhotoPyramid<'a> {
+    pub(super) base: &'a PhotoPixels,
+    pub(super) levels: Vec<Rgb32FImage>,
+}
+
+/// One 2x2 box-filter reduction of the `w` x `h` RGB values `raw`.
+pub(super) fn half_size<V: Values + ?Sized>(raw: &V, w: u32, h: u32) -> Rgb32FImage {
+    let (nw, nh) = (w / 2, h / 2);
+    let mut buf = vec![0f32; (nw * nh * 3) as usize];
+    let stride = 3 * w as usize;
+    buf.par_chunks_mut((nw * 3) as usize)
+        .enumerate()
+        .for_each(|(y, row)| {
+            let (r0, r1) = (2 * y * stride, (2 * y + 1) * stride);
+            for (x, o) in row.chunks_exact_mut(3).enumerate() {
+                let (a, b) = (r0 + 6 * x, r1 + 6 * x);
+                for (k, v) in o.iter_mut().enumerate() {
+                    *v = 0.25
+                        * (raw.value(a + k)
+                            + raw.value(a + 3 + k)
+                            + raw.value(b + k)
+                            + raw.value(b + 3 + k));
+                }
+            }
+        });
+    Rgb32FImage::from_raw(nw, nh, buf).expect("sized nw*nh*3")
+}
+
+/// Bilinear sample at pixel coordinate (`x`, `y`) (pixel units, centres at integers) of the
+/// `w` x `h` RGB values `raw`, clamped at the borders.
+#[inline(always)]
+pub(super) fn bilinear_in<V: Values + ?Sized>(raw: &V, w: u32, h: u32, x: f64, y: f64) -> [f32; 3] {
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = ((x - x0) as f32, (y - y0) as f32);
+    let cl = |v: f64, n: u32| (v.max(0.0) as u32).min(n - 1);
+    let (xa, xb, ya, yb) = (cl(x0, w), cl(x0 + 1.0, w), cl(y0, h), cl(y0 + 1.0, h));
+    let at = |x: u32, y: u32| -> [f32; 3] {
+        let i = 3 * (y as usize * w as usize + x as usize);
+        [raw.value(i), raw.value(i + 1), raw.value(i + 2)]
+    };
+    let (p00, p10) = (at(xa, ya), at(xb, ya));
+    let (p01, p11) = (at(xa, yb), at(xb, yb));
+    std::array::from_fn(|k| {
+        let top = p00[k] + (p10[k] - p00[k]) * fx;
+        let bot = p01[k] + (p11[k] - p01[k]) * fx;
+        top + (bot - top) * fy
+    })
+}
+
+impl<'a> PhotoPyramid<'a> {
+    /// The levels below `base`, at most `levels`.
+    pub(super) fn levels_of(base: &PhotoPixels, levels: usize) -> Vec<Rgb32FImage> {
+        let mut out: Vec<Rgb32FImage> = Vec::new();
+        for _ in 0..levels {
+            let (w, h) = match out.last() {
+                Some(prev) => prev.dimensions(),
+                None => base.dimensions(),
+            };
+            if w < 2 || h < 2 {
+                break;
+            }
+            let next = match (out.last(), base) {
+                (Some(prev), _) => half_size(prev.as_raw().as_slice(), w, h),
+                (None, PhotoPixels::Rgb8(img)) => half_size(img.as_raw().as_slice(), w, h),
+                (None, PhotoPixels::Rgb32F(img)) => half_size(img.as_raw().as_slice(), w, h),
+            };
+            out.push(next);
+        }
+        out
+    }
+
+    /// Bilinear sample at photo pixel coordinate `px` (centres at +0.5) of level `l`.
+    pub(super) fn bilinear(&self, l: usize, px: &Point2<f64>) -> [f32; 3] {
+        let l = l.min(self.levels.len());
+        let f = (1u32 << l) as f64;
+        let (x, y) = (px.x / f - 0.5, px.y / f - 0.5);
+        if l > 0 {
+            let img = &self.levels[l - 1];
+            let (w, h) = img.dimensions();
+            return bilinear_in(img.as_raw().as_slice(), w, h, x, y);
+        }
+        match self.base {
+            PhotoPixels::Rgb8(img) => {
+                bilinear_in(img.as_raw().as_slice(), img.width(), img.height(), x, y)
+            }
+            PhotoPixels::Rgb32F(img) => {
+                bilinear_in(img.as_raw().as_slice(), img.width(), img.height(), x, y)
+            }
+        }
+    }
+
+    /// Trilinear sample with a footprint of `texels` photo pixels.
+    pub(super) fn sample(&self, px: &Point2<f64>, footprint: f64) -> [f32; 3] {
+        let lod = footprint.max(1.0).log2().min(self.levels.len() as f64);
+        let l0 = lod.floor() as usize;
+        let a = self.bilinear(l0, px);
+        if lod == l0 as f64 {
+            return a;
+        }
+        let b = self.bilinear(l0 + 1, px);
+        let t = (lod - l0 as f64) as f32;
+        std::array::from_fn(|k| a[k] + (b[k] - a[k]) * t)
+    }
+}
+
+/// Largest pixel extent of a triangle resampled through an affine texel -> pixel map.
+pub(super) const AFFINE_PX: f64 = 8.0;
+
+/// Largest pixel extent of a triangle resampled through an affine map if it passes the
+/// centroid test.
+pub(super) const AFFINE_MAX_PX: f64 = 64.0;
+
+/// Largest error of an affine map at a triangle's test points, pixels.
+pub(super) const AFFINE_TOL: f64 = 0.02;
+
+/// Whether texels of the triangle `pos` (projected to `q` by `view`) may map to pixels
+/// affinely: always when it spans under [`AFFINE_PX`] pixels; up to [`AFFINE_MAX_PX`] where
+/// the map's error (perspective and distortion) is under [`AFFINE_TOL`] pixels at the
+/// centroid and the edge midpoints.
+pub(super) fn affine_fits(
+    view: &PosedCamera,
+    pos: &[Point3<f64>; 3],
+    q: &[Point2<f64>; 3],
+) -> bool {
+    let extent = (q[0] - q[1])
+        .norm()
+        .max((q[1] - q[2]).norm())
+        .max((q[2] - q[0]).norm());
+    if extent < AFFINE_PX {
+        return true;
+    }
+    if extent >= AFFINE_MAX_PX {
+        return false;
+    }
+    // The error of the affine map is near quadratic over a triangle this small: with it under
+    // the tolerance at the edge midpoints it is under 4/3 of it everywhere; the centroid
+    // catches an error that cancels at the midpoints.
+    let at = |b: [f64; 3]| -> bool {
+        let p = Point3::from(pos[0].coords * b[0] + pos[1].coords * b[1] + pos[2].coords * b[2]);
+        let lin = q[0].coords * b[0] + q[1].coords * b[1] + q[2].coords * b[2];
+        let cam = view.pose.transform(&p);
+        cam.z > 0.0
+            && view
+                .camera
+                .project(&cam)
+                .is_some_and(|e| (e.coords - lin).norm() < AFFINE_TOL)
+    };
+    let t = 1.0 / 3.0;
+    at([t, t, t]) && at([0.5, 0.5, 0.0]) && at([0.0, 0.5, 0.5]) && at([0.5, 0.0, 0.5])
+}
+
+/// The per-face work shared by every way of combining the photographs: which face owns each
+/// texel, the triangle classes, the photographs sampled per face, the filled vertex colours.
+pub(crate) struct Prepared<'a> {
+    pub(crate) mesh: &'a Mesh,
+    pub(crate) normals: &'a [Vector3<f64>],
+    pub(crate) binding: &'a Binding,
+    pub(super) gains: &'a Gains,
+    pub(crate) atlas: &'a Atlas,
+    pub(crate) classes: Vec<FaceClass>,
+    pub(crate) common: Common,
+    pub(crate) vertex_colors: Vec<[f32; 3]>,
+    pub(super) filled_per_round: [u64; 5],
+    pub(super) vertices_unreachable: u64,
+    pub(super) mean_edge: f64,
+    pub(super) robust: bool,
+    pub(super) identity: bool,
+}
+
+/// What [`Prepared::photo_setup`] computes for a photograph.
+pub(crate) struct PhotoSetup {
+    pub(super) depth: Option<DepthMap>,
+    pub(super) levels: Vec<Rgb32FImage>,
+    pub(super) projected: Vec<Option<[f64; 3]>>,
+    pub(super) sampled: Vec<u64>,
+    /// Seconds it took.
+    pub(crate) seconds: f64,
+}
+
+/// One photograph ready to be sampled: its projected vertices, depth map, mip pyramid and
+/// the faces that sample it.
+pub(crate) struct PhotoSampler<'a> {
+    pub(crate) index: usize,
+    pub(super) view: &'a PosedCamera,
+    pub(super) depth: Option<DepthMap>,
+    /// Every vertex projected: photo pixel and camera depth (shared with the depth map).
+    pub(super) projected: Vec<Option<[f64; 3]>>,
+    /// Bit per face: whether the face samples this photograph ([`Prepared::samples`]).
+    pub(super) sampled: Vec<u64>,
+    pub(super) pyramid: PhotoPyramid<'a>,
+    pub(super) mask: Option<&'a GrayImage>,
+    pub(super) centre: Point3<f64>,
+    pub(super) focal: f64,
+}
+
+impl PhotoSampler<'_> {
+    /// Whether face `f` samples this photograph.
+    #[inline]
+    pub(crate) fn samples(&self, f: u32) -> bool {
+        self.sampled[f as usize / 64] >> (f % 64) & 1 == 1
+    }
+}
+
+impl<'a> Prepared<'a> {
+    /// Checks the inputs and does the per-face work for `atlas`.
+    pub(crate) fn new(
+        mesh: &'a Mesh,
+        atlas: &'a Atlas,
+        normals: &'a [Vector3<f64>],
+        binding: &'a Binding,
+        gains: &'a Gains,
+        opts: &ResampleOptions,
+    ) -> Result<Self> {
+        if binding.offsets.len() != mesh.num_vertices() + 1
+            || normals.len() != mesh.num_vertices()
+            || atlas.face_chart.len() != mesh.num_faces()
+        {
+            return Err(Error::Invalid(
+                "binding, normals and atlas must belong to the mesh being resampled".into(),
+            ));
+        }
+        let bind_opts = &binding.options;
+        let face_check = (bind_opts.method == Method::Robust
+            && bind_opts.consistency == Consistency::Face)
+            .then_some(bind_opts.consistency_threshold);
+        let robust = bind_opts.method == Method::Robust;
+        // The paper samples the common photographs of green faces only; robust tries every
+        // photograph valid at any vertex and lets the per-texel depth test decide.
+        let common = Common::new(
+            mesh,
+            binding,
+            face_check,
+            robust,
+            if robust { opts.max_views } else { 0 },
+        );
+        let classes = classes_from(mesh, binding, &common);
+        let (vertex_colors, filled_per_round, vertices_unreachable) =
+            fill_vertex_colors(mesh, &binding.vertex_colors());
+        Ok(Prepared {
+            mesh,
+            normals,
+            binding,
+            atlas,
+            classes,
+            common,
+            vertex_colors,
+            filled_per_round,
+            vertices_unreachable,
+            mean_edge: mesh.mean_edge_length(),
+            robust,
+            gains,
+            identity: gains.is_identity(),
+        })
+    }
+
+    /// Atlas side in texels.
+    pub(crate) fn size(&self) -> usize {
+        self.atlas.texels.size
+    }
+
+    /// Face owning texel `i` (row-major), if any.
+    pub(crate) fn owner(&self, i: usize) -> Option<u32> {
+        self.atlas.owner(i)
+    }
+
+    /// Whether face `f` samples photograph `photo`.
+    pub(crate) fn samples(&self, f: usize, photo: u32) -> bool {
+        self.common.of(f).binary_search(&photo).is_ok()
+    }
+
+    /// Texel rows and columns (inclusive) face `f` may own, if it lies on the page.
+    pub(crate) fn face_rect(&self, f: usize) -> Option<((usize, usize), (usize, usize))> {
+        self.atlas.face_rect(f)
+    }
+
+    /// The part of getting photograph `pi` (decoded as `rgb`) ready to sample that takes
+    /// time: its projected vertices, depth map, mip levels and the faces that sample it,
+    /// owned, so that it can run beside the work on the previous photograph.
+    pub(crate) fn photo_setup(&self, photos: &[Photo], pi: usize, rgb: &PhotoPixels) -> PhotoSetup {
+        let view = &photos[pi].view;
+        let t = std::time::Instant::now();
+        let projected = crate::depth::project_vertices(self.mesh, view);
+        let depth = self.robust.then(|| {
+            let res = self.binding.options.depth_resolution;
+            DepthMap::render_projected(self.mesh, view, &projected, res).eroded(1)
+        });
+        let levels = PhotoPyramid::levels_of(rgb, if self.robust { 8 } else { 0 });
+        // One test per face here instead of a search per face and chart in the loops.
+        let photo = pi as u32;
+        let sampled = (0..self.mesh.num_faces())
+            .into_par_iter()
+            .step_by(64)
+            .map(|f0| {
+                (f0..(f0 + 64).min(self.mesh.num_faces()))
+                    .filter(|&f| self.samples(f, photo))
+                    .fold(0u64, |w, f| w | 1 << (f - f0))
+            })
+            .collect();
+        PhotoSetup {
+            depth,
+            levels,
+            projected,
+            sampled,
+            seconds: t.elapsed().as_secs_f64(),
+        }
+    }
+
+    /// Photograph `pi` (decoded as `rgb`, with its mask) ready to sample, from its `setup`.
+    pub(crate) fn photo_with(
+        &self,
+        photos: &'a [Photo],
+        pi: usize,
+        rgb: &'a PhotoPixels,
+        mask: Option<&'a GrayImage>,
+        setup: PhotoSetup,
+    ) -> PhotoSampler<'a> {
+        let view = &photos[pi].view;
+        PhotoSampler {
+            index: pi,
+            view,
+            depth: setup.depth,
+            projected: setup.projected,
+            sampled: setup.sampled,
+            pyramid: PhotoPyramid {
+                base: rgb,
+                levels: setup.levels,
+            },
+            mask,
+            centre: view.pose.center(),
+            focal: focal_px(view),
+        }
+    }
+
+    /// Samples photograph `ph` at every texel face `f` owns in rows `y0..y1`, calling
+    /// `emit(x, y, colour, weight)` for each texel the photograph sees (gain-corrected colour;
+    /// weight `<N, V>` for the paper, projected area for robust).
+    /// With `coarse` = Some((x, y)), only the texels at even offsets from (x, y) are sampled,
+    /// each over twice the footprint (standing for the 2 x 2 texels from it).
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn sample_face(
+        &self,
+        ph: &PhotoSampler,
+        f: u32,
+        y0: usize,
+        y1: usize,
+        coarse: Option<(usize, usize)>,
+        mut emit: impl FnMut(usize, usize, [f32; 3], f32),
+    ) {
+        let n = self.atlas.texels.size;
+        let Some(r) = self.atlas.texels.faces[f as usize].as_ref() else {
+            return;
+        };
+        let (mesh, view, pi) = (self.mesh, ph.view, ph.index);
+        let bind_opts = &self.binding.options;
+        let fv = mesh.faces[f as usize];
+        let pos: [Point3<f64>; 3] = std::array::from_fn(|k| mesh.positions[fv[k].idx()]);
+        let nrm: [Vector3<f64>; 3] = std::array::from_fn(|k| self.normals[fv[k].idx()]);
+        // Per face, from the photograph's projected vertices: an affine map texel -> pixel
+        // where `affine_fits` finds its error far below a pixel; per-texel projection
+        // otherwise.
+        let proj = fv.map(|v| ph.projected[v.idx()]);
+        let affine = match proj {
+            [Some(a), Some(b), Some(c)] => {
+                let q = [a, b, c].map(|p| Point2::new(p[0], p[1]));
+                let fits = affine_fits(view, &pos, &q);
+                fits.then(|| {
+                    let cos: [f64; 3] = std::array::from_fn(|k| {
+                        let to_cam = ph.centre - pos[k];
+                        nrm[k].dot(&to_cam) / to_cam.norm().max(1e-300)
+                    });
+                    (q, [a[2], b[2], c[2]], cos)
+                })
+            }
+            _ => None,
+        };
+        // Gain corrections at the vertices, interpolated (the fields are smooth).
+        let gain: [[f32; 3]; 3] = if self.identity {
+            [[1.0; 3]; 3]
+        } else {
+            nrm.map(|nv| self.gains.factor(pi, &nv))
+        };
+        let (step, (gx, gy)) = match coarse {
+            Some(g) => (2, g),
+            None => (1, (0, 0)),
+        };
+        let (ya, xa) = (r.rows.0.max(y0), r.cols.0);
+        // The first row and column on the grid.
+        let (ya, xa) = (ya + ((ya ^ gy) & (step - 1)), xa + ((xa ^ gx) & (step - 1)));
+        for y in (ya..=r.rows.1.min(y1 - 1)).step_by(step) {
+            for x in (xa..=r.cols.1).step_by(step) {
+                if self.atlas.texels.owner[y * n + x] != f {
+                    continue;
+                }
+                let b = clamp_bary(r.bary(x, y));
+                let (px, z, cos) = match &affine {
+                    Some((q, zs, cv)) => (
+                        Point2::from(q[0].coords * b[0] + q[1].coords * b[1] + q[2].coords * b[2]),
+                        zs[0] * b[0] + zs[1] * b[1] + zs[2] * b[2],
+                        cv[0] * b[0] + cv[1] * b[1] + cv[2] * b[2],
+                    ),
+                    None => {
+                        let p = Point3::from(
+                            pos[0].coords * b[0] + pos[1].coords * b[1] + pos[2].coords * b[2],
+                        );
+                        let nn = (nrm[0] * b[0] + nrm[1] * b[1] + nrm[2] * b[2])
+                            .try_normalize(1e-12)
+                            .unwrap_or(nrm[0]);
+                        let to_cam = ph.centre - p;
+                        let cos = nn.dot(&to_cam) / to_cam.norm().max(1e-300);
+                        let cam = view.pose.transform(&p);
+                        if cam.z <= 0.0 {
+                            continue;
+                        }
+                        let Some(px) = view.camera.project(&cam) else {
+                            continue;
+                        };
+                        (px, cam.z, cos)
+                    }
+                };
+                let (c, w) = if let Some(d) = &ph.depth {
+                    if cos <= 0.0 || !view.camera.contains(&px) {
+                        continue;
+                    }
+                    // Masks decide per texel too: a face seen at one vertex may leave the
+                    // object's outline elsewhere.
+                    if let Some(m) = ph.mask {
+                        let (mx, my) = (px.x as u32, px.y as u32);
+                        if mx >= m.width() || my >= m.height() || m.get_pixel(mx, my)[0] < 128 {
+                            continue;
+                        }
+                    }
+                    let tol = depth_tolerance(self.mean_edge, z, ph.focal * d.scale, cos);
+                    if z > d.at(&px) as f64 + tol {
+                        continue;
+                    }
+                    let footprint = step as f64 * r.texel_len * ph.focal / z;
+                    let area = cos * (ph.focal * self.mean_edge / z).powi(2);
+                    let w = if bind_opts.weight_power == 1.0 {
+                        area
+                    } else {
+                        area.powf(bind_opts.weight_power)
+                    };
+                    (ph.pyramid.sample(&px, footprint), w)
+                } else {
+                    // The paper: every common photograph, weight <N, V>.
+                    (ph.pyramid.bilinear(0, &px), cos.max(0.0))
+                };
+                let c: [f32; 3] = if self.identity {
+                    c
+                } else {
+                    let bf = b.map(|v| v as f32);
+                    std::array::from_fn(|k| {
+                        c[k] * (gain[0][k] * bf[0] + gain[1][k] * bf[1] + gain[2][k] * bf[2])
+                    })
+                };
+                emit(x, y, c, w as f32);
+            }
+        }
+    }
+
+    /// Face `f`'s vertex colours interpolated at texel (x, y).
+    pub(crate) fn vertex_color_at(&self, f: u32, x: usize, y: usize) -> [f32; 3] {
+        let r = self.atlas.texels.faces[f as usize]
+            .as_ref()
+            .expect("owners rasterise");
+        let b = clamp_bary(r.bary(x, y));
+        let fv = self.mesh.faces[f as usize];
+        std::array::from_fn(|k| {
+            (0..3)
+                .map(|j| self.vertex_colors[fv[j].idx()][k] * b[j] as f32)
+                .sum()
+        })
+    }
+
+    /// Source of a chart texel of face `f` no photograph coloured.
+    pub(crate) fn fallback_source(&self, f: u32) -> TexelSource {
+        match self.classes[f as usize] {
+            FaceClass::Green => TexelSource::GreenFallback,
+            FaceClass::Blue => TexelSource::Blue,
+            FaceClass::Red => TexelSource::Red,
+        }
+    }
+
+    /// Fills the gutter and counts: the last step of every merge.
+    pub(crate) fn finish(
+        &self,
+        mut color: Vec<f32>,
+        mut source: Vec<u8>,
+        views: Vec<u8>,
+        best: Vec<u16>,
+        opts: &ResampleOptions,
+        seconds: (f64, f64),
+    ) -> Resampled {
+        let n = self.atlas.texels.size;
+        let gutter = extend_into_gutter(&mut color, &mut source, n, opts.gutter_fill);
+        let count = |s: TexelSource| source.par_iter().filter(|&&v| v == s as u8).count() as u64;
+        let classes = self.classes.clone();
+        let stats = ResampleStats {
+            green: classes.iter().filter(|c| **c == FaceClass::Green).count() as u64,
+            blue: classes.iter().filter(|c| **c == FaceClass::Blue).count() as u64,
+            red: classes.iter().filter(|c| **c == FaceClass::Red).count() as u64,
+            texels_photos: count(TexelSource::Photos),
+            texels_green_fallback: count(TexelSource::GreenFallback),
+            texels_blue: count(TexelSource::Blue),
+            texels_red: count(TexelSource::Red),
+            texels_gutter: gutter,
+            filled_per_round: self.filled_per_round,
+            vertices_unreachable: self.vertices_unreachable,
+            seconds_photo_setup: seconds.0,
+            seconds_texels: seconds.1,
+            cpu_seconds_sampling: 0.0,
+            seconds_collapse: 0.0,
+            seam_levelling: None,
+            seam_levelling_after_restore: None,
+        };
+        Resampled {
+            color: Rgb32FImage::from_raw(n as u32, n as u32, color).expect("sized n*n*3"),
+            source,
+            views,
+            best_photo: best,
+            classes,
+            vertex_colors: self.vertex_colors.clone(),
+            stats,
+        }
+    }
+}

@@ -1,0 +1,305 @@
+//! Stage 5 on the atlas: which texels to restore (unseen, in charts with seen texels, in
+//! holes of at most `max_hole`), restored in independent crops in parallel, faded into the
+//! vertex colours at chart borders; what is left goes on as [`Unrestored`].
+
+use super::*;
+use crate::planar::BitMask;
+
+/// The unseen texels restoration did not fill, handed on for exemplar synthesis (stage 6) and
+/// drawn by `--debug-dir` (`restore.png`). One bit per atlas texel, row-major.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Unrestored {
+    /// Atlas side in texels.
+    pub size: usize,
+    /// Texels of unseen regions larger than `max_hole`: they keep their vertex colours.
+    pub too_large: BitMask,
+    /// Unseen texels of charts no photograph saw at all: nothing in 2D to restore them from.
+    pub unreachable: BitMask,
+}
+
+/// What stage 5 did to each texel: grey where photographs coloured it, green where it was
+/// restored, magenta where it was left for being part of a region larger than `max_hole`,
+/// orange where its chart had no seen texel (or restoration did not run: `left` is `None`),
+/// black outside the charts.
+pub fn picture(res: &crate::resample::Resampled, left: Option<&Unrestored>) -> image::RgbImage {
+    use crate::resample::TexelSource as S;
+    let (w, h) = res.color.dimensions();
+    image::RgbImage::from_fn(w, h, |x, y| {
+        let i = (y * w + x) as usize;
+        let s = res.source[i];
+        image::Rgb(if s == S::Photos as u8 {
+            [110, 110, 110]
+        } else if s == S::GreenFallback as u8 || s == S::Blue as u8 || s == S::Red as u8 {
+            match left {
+                Some(l) if l.too_large.get(i) => [220, 40, 200],
+                Some(l) if !l.unreachable.get(i) => [40, 200, 60],
+                _ => [240, 140, 20],
+            }
+        } else {
+            [0, 0, 0]
+        })
+    })
+}
+
+/// Stage 5 on the atlas: fills the texels the merge marked as seen by no photograph (green
+/// fallback, blue and red triangles), reading chart texels only, then extends the charts into
+/// the gutter again so that filtering never pulls in the old fill. Returns what it did and the
+/// unseen texels it left.
+pub fn restore_atlas(
+    res: &mut crate::resample::Resampled,
+    opts: &RestoreOptions,
+    max_hole: usize,
+    gutter_fill: u32,
+) -> Result<(RestoreReport, Unrestored)> {
+    use crate::resample::TexelSource as S;
+    let n = res.color.width() as usize;
+    let unseen = |s: u8| s == S::GreenFallback as u8 || s == S::Blue as u8 || s == S::Red as u8;
+    let domain: Vec<bool> = res
+        .source
+        .iter()
+        .map(|&s| s == S::Photos as u8 || unseen(s))
+        .collect();
+    // Charts no photograph saw at all have nothing to restore from in 2D: their vertex colours
+    // (continuous across seams, from the 3D neighbourhood) stay. Charts are separate domain
+    // components (gutter lies between them), so "reachable from a seen texel" is "in a chart
+    // with seen texels".
+    let reach = {
+        let seen: Vec<bool> = res.source.iter().map(|&s| s == S::Photos as u8).collect();
+        grid_distance(n, n, &domain, &seen, None)
+    };
+    let mut mask: Vec<bool> = (0..n * n)
+        .map(|i| unseen(res.source[i]) && reach[i] != u8::MAX)
+        .collect();
+    let mut left = Unrestored {
+        size: n,
+        too_large: BitMask::new(n * n),
+        unreachable: BitMask::new(n * n),
+    };
+    for i in (0..n * n).filter(|&i| unseen(res.source[i]) && reach[i] == u8::MAX) {
+        left.unreachable.set(i);
+    }
+    let texels_left_unreachable = left.unreachable.count() as u64;
+    drop(reach);
+    // Large unseen regions are exemplar synthesis's (stage 6): pixel-by-pixel synthesis of a
+    // region of a million texels is one long sequential walk, and its 2D neighbourhood is the
+    // atlas's, not the surface's. They keep their vertex colours here.
+    let mut left_large = 0u64;
+    let mut comps = holes(n, n, &mask);
+    if max_hole > 0 {
+        comps.retain(|comp| {
+            if comp.len() > max_hole {
+                left_large += comp.len() as u64;
+                for &i in comp {
+                    mask[i] = false;
+                    left.too_large.set(i);
+                }
+                false
+            } else {
+                true
+            }
+        });
+    }
+    // Distance to the chart border: restored values fade into the vertex colours there, so
+    // that both sides of a seam still agree.
+    let border: Vec<bool> = (0..n * n)
+        .map(|i| {
+            let (x, y) = (i % n, i / n);
+            domain[i]
+                && (x == 0
+                    || y == 0
+                    || x + 1 == n
+                    || y + 1 == n
+                    || !domain[i - 1]
+                    || !domain[i + 1]
+                    || !domain[i - n]
+                    || !domain[i + n])
+        })
+        .collect();
+    let to_border = grid_distance(n, n, &domain, &border, Some(BORDER_TAPER as u8));
+    drop(border);
+    let mut data = std::mem::replace(&mut res.color, image::Rgb32FImage::new(0, 0)).into_raw();
+    // Holes are restored in crops (a group of nearby holes' bounding boxes widened by the
+    // source margin), so the cost follows the holes, not the atlas: the split, envelope and
+    // pyramid of a whole 4096 atlas took 12 s for 2264 texels. Crops stay under
+    // `MAX_CROP_AREA` (one crop of a whole 8192 atlas took 59 s and 10 GB); a crop restores
+    // its own holes only and reads no other hole's texels, so crops are independent and run
+    // in parallel on the atlas as it came from the merge.
+    let crops = crops(n, &comps, opts.margin.max(16) + 8, MAX_CROP_AREA);
+    let wall = Instant::now();
+    let results: Vec<(Vec<Fill>, RestoreReport)> = crops
+        .par_iter()
+        .map(|crop| {
+            let r = crop.rect;
+            let (cw, chh) = (r.2 - r.0, r.3 - r.1);
+            let idx = |x: usize, y: usize| (r.1 + y) * n + r.0 + x;
+            let mut cimg = Vec::with_capacity(cw * chh * 3);
+            let mut cdom = Vec::with_capacity(cw * chh);
+            for y in 0..chh {
+                for x in 0..cw {
+                    let i = idx(x, y);
+                    cimg.extend_from_slice(&data[i * 3..i * 3 + 3]);
+                    cdom.push(domain[i] && !mask[i]);
+                }
+            }
+            let mut cmask = vec![false; cw * chh];
+            for &k in &crop.holes {
+                for &i in &comps[k] {
+                    let j = (i / n - r.1) * cw + i % n - r.0;
+                    cmask[j] = true;
+                    cdom[j] = true;
+                }
+            }
+            let img = Image {
+                width: cw,
+                height: chh,
+                channels: 3,
+                data: cimg,
+            };
+            let (out, rep) = inpaint(&img, &cmask, Some(&cdom), opts)?;
+            let fills = (0..cw * chh)
+                .filter(|&j| cmask[j])
+                .map(|j| {
+                    let c = [out.data[j * 3], out.data[j * 3 + 1], out.data[j * 3 + 2]];
+                    (idx(j % cw, j / cw), c)
+                })
+                .collect();
+            Ok((fills, rep))
+        })
+        .collect::<Result<_>>()?;
+    let mut report = RestoreReport {
+        method: opts.method,
+        windows: crops.len(),
+        ..Default::default()
+    };
+    let mut kappas = Vec::new();
+    for (fills, rep) in results {
+        for (i, c) in fills {
+            let w = f32::from(to_border[i].min(BORDER_TAPER as u8)) / BORDER_TAPER as f32;
+            for (k, &v) in c.iter().enumerate() {
+                let before = data[i * 3 + k];
+                data[i * 3 + k] = before + w * (v - before);
+            }
+        }
+        report.texels += rep.texels;
+        report.detail_scale += rep.detail_scale * rep.texels as f64;
+        report.seconds_split += rep.seconds_split;
+        report.seconds_diffusion += rep.seconds_diffusion;
+        report.seconds_synthesis += rep.seconds_synthesis;
+        kappas.push(rep.kappa);
+        for l in rep.levels {
+            match report.levels.iter_mut().find(|m| m.level == l.level) {
+                Some(m) => {
+                    m.texels += l.texels;
+                    m.coherent += l.coherent;
+                    m.stalled += l.stalled;
+                    m.windows += l.windows;
+                    m.sources += l.sources;
+                    m.seconds += l.seconds;
+                }
+                None => report.levels.push(l),
+            }
+        }
+    }
+    report.detail_scale = if report.texels > 0 {
+        report.detail_scale / report.texels as f64
+    } else {
+        1.0
+    };
+    kappas.sort_unstable();
+    report.kappa = kappas.get(kappas.len() / 2).copied().unwrap_or(0);
+    report.kappa_auto = opts.kappa == Kappa::Auto;
+    report.seconds = wall.elapsed().as_secs_f64();
+    report.texels_left_large = left_large;
+    report.texels_left_unreachable = texels_left_unreachable;
+    res.color = image::Rgb32FImage::from_raw(n as u32, n as u32, data).expect("n * n * 3 values");
+    crate::resample::refill_gutter(res, gutter_fill);
+    Ok((report, left))
+}
+
+/// Texels over which restored atlas values fade into the vertex colours at a chart border.
+pub(super) const BORDER_TAPER: u32 = 8;
+
+/// A restored atlas texel: its index and colour.
+pub(super) type Fill = (usize, [f32; 3]);
+
+/// Largest crop built by merging holes' windows, texels (a single hole's window may exceed
+/// it).
+pub(super) const MAX_CROP_AREA: usize = 1 << 20;
+
+/// A rectangle of the atlas (x0, y0, x1, y1) and the holes (indices) it restores.
+pub(super) struct Crop {
+    pub(super) rect: (usize, usize, usize, usize),
+    pub(super) holes: Vec<usize>,
+}
+
+/// Crops covering every hole of `comps` widened by `margin`; overlapping crops are merged
+/// while the merged one stays within `max_area`.
+pub(super) fn crops(n: usize, comps: &[Vec<usize>], margin: usize, max_area: usize) -> Vec<Crop> {
+    let mut crops: Vec<Crop> = comps
+        .iter()
+        .enumerate()
+        .map(|(k, c)| {
+            let (mut x0, mut y0, mut x1, mut y1) = (n, n, 0, 0);
+            for &i in c {
+                let (x, y) = (i % n, i / n);
+                x0 = x0.min(x);
+                y0 = y0.min(y);
+                x1 = x1.max(x + 1);
+                y1 = y1.max(y + 1);
+            }
+            Crop {
+                rect: (
+                    x0.saturating_sub(margin),
+                    y0.saturating_sub(margin),
+                    (x1 + margin).min(n),
+                    (y1 + margin).min(n),
+                ),
+                holes: vec![k],
+            }
+        })
+        .collect();
+    crops.sort_unstable_by_key(|c| (c.rect.1, c.rect.0, c.holes[0]));
+    let area = |r: (usize, usize, usize, usize)| (r.2 - r.0) * (r.3 - r.1);
+    // Merge until no merge is possible (quadratic passes over few crops are cheap).
+    loop {
+        let mut merged = false;
+        let mut out: Vec<Crop> = Vec::with_capacity(crops.len());
+        for c in crops {
+            let r = c.rect;
+            let target = out.iter_mut().find(|o| {
+                let u = (
+                    o.rect.0.min(r.0),
+                    o.rect.1.min(r.1),
+                    o.rect.2.max(r.2),
+                    o.rect.3.max(r.3),
+                );
+                r.0 < o.rect.2
+                    && o.rect.0 < r.2
+                    && r.1 < o.rect.3
+                    && o.rect.1 < r.3
+                    && area(u) <= max_area
+            });
+            match target {
+                Some(o) => {
+                    o.rect = (
+                        o.rect.0.min(r.0),
+                        o.rect.1.min(r.1),
+                        o.rect.2.max(r.2),
+                        o.rect.3.max(r.3),
+                    );
+                    o.holes.extend(c.holes);
+                    merged = true;
+                }
+                None => out.push(c),
+            }
+        }
+        crops = out;
+        if !merged {
+            break;
+        }
+    }
+    for c in &mut crops {
+        c.holes.sort_unstable();
+    }
+    crops
+}
