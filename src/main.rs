@@ -490,14 +490,6 @@ impl ViewArgs {
     }
 }
 
-/// The directory a file is written into (`.` for a bare file name).
-fn parent_dir(p: &std::path::Path) -> &std::path::Path {
-    match p.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => std::path::Path::new("."),
-    }
-}
-
 fn run(cli: Cli) -> scantex::Result<ExitCode> {
     match cli.command {
         Command::Render {
@@ -549,7 +541,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
                 .as_deref()
                 .map(|p| {
                     let label = scantex::io::staging::label_of(p);
-                    scantex::io::Staged::begin(&label, &[parent_dir(p)])
+                    scantex::io::Staged::begin(&label, &[scantex::io::staging::dir_of(p)])
                 })
                 .transpose()?;
             let report =
@@ -753,7 +745,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             };
             let label = scantex::io::staging::label_of(&out);
             scantex::io::image::planar_output_format(&out)?;
-            let staged = scantex::io::Staged::begin(&label, &[parent_dir(&out)])?;
+            let staged = scantex::io::Staged::begin(&label, &[scantex::io::staging::dir_of(&out)])?;
             let (img, depth) = scantex::io::image::read_planar(&image)?;
             let (m, mw, mh) = scantex::io::image::read_mask(&mask)?;
             if (mw, mh) != (img.width, img.height) {

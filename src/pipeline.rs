@@ -556,20 +556,13 @@ pub fn param_file(
     report: Option<&Path>,
     opts: &AtlasOptions,
 ) -> Result<AtlasReport> {
-    let parent = |p: &'_ Path| -> std::path::PathBuf {
-        match p.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-            _ => Path::new(".").to_path_buf(),
-        }
-    };
     let stem = out
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_default();
     let layout = out.with_file_name(format!("{stem}_layout.png"));
-    let mut dirs = vec![parent(out)];
-    dirs.extend(report.map(parent));
-    let dirs: Vec<&Path> = dirs.iter().map(|d| d.as_path()).collect();
+    let mut dirs = vec![io::staging::dir_of(out)];
+    dirs.extend(report.map(io::staging::dir_of));
     let mut staged = Staged::begin(&io::staging::label_of(out), &dirs)?;
     let (input, _) = io::read_mesh(mesh)?;
     let (out_mesh, rep) = atlas::parameterize(&input, opts)?;

@@ -393,6 +393,7 @@ pub fn build(mut mesh: Mesh, opts: &AtlasOptions) -> crate::Result<(Mesh, Atlas,
 
 /// Stage 1 for a mesh that keeps the UVs it arrived with (`texture --keep-uvs`): no new
 /// layout, the [`Atlas`] of its UV islands on a `size` page and the report [`measure`] gives.
+/// `mesh` is welded, as [`Mesh::weld`] leaves it (as for [`build`]).
 /// Texturing writes one page: faces whose UVs lie outside [0, 1] are refused.
 pub fn keep(mesh: Mesh, size: u32) -> crate::Result<(Mesh, Atlas, AtlasReport)> {
     let Some(uv) = &mesh.uv else {
@@ -416,8 +417,10 @@ pub fn keep(mesh: Mesh, size: u32) -> crate::Result<(Mesh, Atlas, AtlasReport)> 
             c.x, c.y
         )));
     }
-    let report = measure(&mesh, size)?;
-    let atlas = Atlas::from_uvs(&mesh, size)?;
+    // One island map for the atlas and the report; the atlas checks the size first.
+    let islands = uv_islands(uv);
+    let atlas = Atlas::with_charts(&mesh, size, &islands)?;
+    let report = measure_with(&mesh, &Adjacency::new(&mesh), uv, &islands, size);
     Ok((mesh, atlas, report))
 }
 

@@ -158,10 +158,7 @@ impl Staged {
                     ),
                 )
             })?;
-        let dest = match path.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
+        let dest = dir_of(path).to_path_buf();
         let i = self.dir(&dest)?;
         let d = &mut self.dirs[i];
         std::fs::write(d.live.tmp.join(&name), bytes).map_err(|e| Error::io(path, e))?;
@@ -285,6 +282,14 @@ pub fn abort_all() {
         for d in dirs.iter().rev() {
             d.remove(true);
         }
+    }
+}
+
+/// The directory a file is written into: its parent, or `.` for a bare file name.
+pub fn dir_of(path: &Path) -> &Path {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
     }
 }
 
