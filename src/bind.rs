@@ -49,14 +49,12 @@ impl std::fmt::Display for Method {
 }
 
 impl std::str::FromStr for Method {
-    type Err = Error;
-    fn from_str(s: &str) -> Result<Self> {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
         match s {
             "paper" => Ok(Method::Paper),
             "robust" => Ok(Method::Robust),
-            _ => Err(Error::Invalid(format!(
-                "unknown method '{s}' (expected paper or robust)"
-            ))),
+            _ => Err(format!("unknown method '{s}' (expected paper or robust)")),
         }
     }
 }
@@ -144,15 +142,15 @@ impl std::fmt::Display for Consistency {
 }
 
 impl std::str::FromStr for Consistency {
-    type Err = Error;
-    fn from_str(s: &str) -> Result<Self> {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
         match s {
             "face" => Ok(Consistency::Face),
             "vertex" => Ok(Consistency::Vertex),
             "off" => Ok(Consistency::Off),
-            _ => Err(Error::Invalid(format!(
+            _ => Err(format!(
                 "unknown consistency check '{s}' (expected face, vertex or off)"
-            ))),
+            )),
         }
     }
 }

@@ -28,6 +28,27 @@ impl fmt::Display for Location {
     }
 }
 
+/// The part of a mesh an error is about.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MeshElement {
+    /// The mesh as a whole (it lacks something the request needs).
+    Whole,
+    /// A face, by its 0-based index in the loaded (welded) mesh.
+    Face(usize),
+    /// A vertex, by its 0-based index in the loaded (welded) mesh.
+    Vertex(usize),
+}
+
+impl fmt::Display for MeshElement {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            MeshElement::Whole => Ok(()),
+            MeshElement::Face(i) => write!(f, " face {i}"),
+            MeshElement::Vertex(i) => write!(f, " vertex {i}"),
+        }
+    }
+}
+
 /// All errors scantex's library returns.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
@@ -49,8 +70,33 @@ pub enum Error {
         /// What is wrong, in words a user can act on.
         msg: String,
     },
-    /// The inputs are individually valid but do not fit together (a scene without photos, an
-    /// image that references a camera that does not exist, ...).
+    /// A directory does not hold what it was given for (no COLMAP model, several meshes).
+    #[error("{}: {msg}", path.display())]
+    Directory {
+        /// The directory.
+        path: PathBuf,
+        /// What is wrong, and what to do.
+        msg: String,
+    },
+    /// The mesh, or one of its elements, makes the request impossible (no texture coordinates
+    /// to keep, a face outside the texture page).
+    #[error("mesh{element}: {msg}")]
+    Mesh {
+        /// The element at fault.
+        element: MeshElement,
+        /// What is wrong with it.
+        msg: String,
+    },
+    /// A registered photograph cannot be used (its file is not a readable image).
+    #[error("image {image_id}: {msg}")]
+    Photo {
+        /// The image's COLMAP id.
+        image_id: u32,
+        /// What is wrong, naming the file.
+        msg: String,
+    },
+    /// The inputs are individually valid but do not fit together as a whole (a scene without
+    /// photographs, a mesh no photograph sees, more photographs than an atlas can record).
     #[error("{0}")]
     Invalid(String),
     /// An option's value is out of range. `option` is the field of the options struct, which
@@ -92,6 +138,14 @@ impl Error {
     pub fn option(option: &'static str, msg: impl Into<String>) -> Self {
         Error::BadOption {
             option,
+            msg: msg.into(),
+        }
+    }
+
+    /// A fault of the mesh's `element`.
+    pub fn mesh(element: MeshElement, msg: impl Into<String>) -> Self {
+        Error::Mesh {
+            element,
             msg: msg.into(),
         }
     }

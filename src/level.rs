@@ -67,7 +67,7 @@ pub struct LevelStats {
     pub border_step_after: f64,
     /// Largest correction applied to any channel.
     pub max_correction: f64,
-    /// Wall-clock seconds (set by the caller).
+    /// Wall-clock seconds.
     pub seconds: f64,
 }
 
@@ -98,6 +98,7 @@ pub fn level_seams(
     color: &mut [f32],
     smoothness: f64,
 ) -> LevelStats {
+    let t = std::time::Instant::now();
     let Some(uv) = &mesh.uv else {
         return LevelStats::default();
     };
@@ -335,7 +336,7 @@ pub fn level_seams(
         border_step_before,
         border_step_after,
         max_correction,
-        seconds: 0.0,
+        seconds: t.elapsed().as_secs_f64(),
     }
 }
 

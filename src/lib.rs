@@ -51,4 +51,4 @@ pub mod sample;
 pub mod scene;
 pub mod seams;
 
-pub use error::{Error, Location, Result};
+pub use error::{Error, Location, MeshElement, Result};

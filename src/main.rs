@@ -749,13 +749,16 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             let (img, depth) = scantex::io::image::read_planar(&image)?;
             let (m, mw, mh) = scantex::io::image::read_mask(&mask)?;
             if (mw, mh) != (img.width, img.height) {
-                return Err(scantex::Error::Invalid(format!(
-                    "{}: the mask is {mw}x{mh} but the image {} is {}x{}",
-                    mask.display(),
-                    image.display(),
-                    img.width,
-                    img.height
-                )));
+                return Err(scantex::Error::parse(
+                    &mask,
+                    scantex::Location::File,
+                    format!(
+                        "the mask is {mw}x{mh} but the image {} is {}x{}",
+                        image.display(),
+                        img.width,
+                        img.height
+                    ),
+                ));
             }
             let (restored, report) = scantex::restore::inpaint(&img, &m, None, &opts)?;
             scantex::io::image::stage_planar(staged, &out, &restored, depth)?;

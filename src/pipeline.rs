@@ -62,15 +62,15 @@ impl std::fmt::Display for TextureFormat {
 }
 
 impl std::str::FromStr for TextureFormat {
-    type Err = Error;
-    fn from_str(s: &str) -> Result<Self> {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
         match s {
             "png" => Ok(TextureFormat::Png),
             "png16" => Ok(TextureFormat::Png16),
             "exr" => Ok(TextureFormat::Exr),
-            _ => Err(Error::Invalid(format!(
+            _ => Err(format!(
                 "unknown texture format '{s}' (expected png, png16 or exr)"
-            ))),
+            )),
         }
     }
 }
@@ -159,9 +159,9 @@ impl TextureOptions {
         self.photometric.validate()?;
         self.merge.validate()?;
         if self.atlas.pack.texels_per_unit.is_some() {
-            return Err(Error::Invalid(
-                "texturing writes one atlas page: a fixed texel density is not supported here"
-                    .into(),
+            return Err(Error::option(
+                "texel_density",
+                "texturing writes one atlas page: a fixed texel density is not supported here",
             ));
         }
         Ok(())
@@ -217,6 +217,8 @@ pub struct TextureReport {
     pub gains: Gains,
     /// Triangles per class and texels per source.
     pub resample: ResampleStats,
+    /// What the multiband merge and the chart-border levelling measured.
+    pub merging: merge::MergeStats,
     /// Seam visibility of the atlas (1 = invisible): across view boundaries and chart borders.
     pub seams: SeamReport,
     /// Restoration of the texels no photograph saw (stage 5), if it ran.
@@ -346,7 +348,7 @@ pub fn texture(
     let (binding, gains) = photometric::normalise(binding, &normals, &opts.photometric);
     progress.finish();
     stages.push(stage_since("gains", &mut t));
-    let resampled = merge::merge(
+    let (mut resampled, mut merging) = merge::merge(
         &m,
         &normals,
         &atlas,
@@ -358,7 +360,6 @@ pub fn texture(
         progress,
     )?;
     stages.push(stage_since("resample+merge", &mut t));
-    let mut resampled = resampled;
     let (restore, unrestored) = match opts.restoration {
         Restoration::Off => (None, None),
         Restoration::Synthesis { options, max_hole } => {
@@ -371,7 +372,8 @@ pub fn texture(
             )?;
             // Restored texels meet at chart borders without having seen each other.
             if opts.merge.merge == merge::Merge::Multiband && opts.merge.level_seams {
-                merge::relevel(&m, &atlas, &mut resampled, opts.resample.gutter_fill)?;
+                let st = merge::relevel(&m, &atlas, &mut resampled, opts.resample.gutter_fill)?;
+                merging.seam_levelling_after_restore = Some(st);
             }
             progress.finish();
             stages.push(stage_since("restore", &mut t));
@@ -405,6 +407,7 @@ pub fn texture(
         per_photo: binding.per_photo.clone(),
         gains,
         resample: resampled.stats.clone(),
+        merging,
         seams,
         restore,
         completeness_seen: if seen > 0 {

@@ -206,14 +206,15 @@ pub fn generate(
     out: &Path,
 ) -> Result<SampleReport> {
     if !GAIN_RANGE_LIMITS.contains(&opts.gain_range) {
-        return Err(Error::Invalid(format!(
-            "gain range {} must lie in [0, 0.9]",
-            opts.gain_range
-        )));
+        return Err(Error::option(
+            "gain_range",
+            format!("gain range {} must lie in [0, 0.9]", opts.gain_range),
+        ));
     }
     if truth.uv.is_none() {
-        return Err(Error::Invalid(
-            "the truth mesh needs texture coordinates".into(),
+        return Err(Error::mesh(
+            crate::MeshElement::Whole,
+            "the truth mesh needs texture coordinates",
         ));
     }
     let mut rng = SplitMix64::new(opts.seed);
@@ -225,7 +226,7 @@ pub fn generate(
         texture
             .to_rgb8()
             .write_with_encoder(enc)
-            .map_err(|e| Error::Invalid(format!("texture: {e}")))?;
+            .map_err(|e| Error::Internal(format!("JPEG encoding of the texture in memory: {e}")))?;
         EncodedTexture {
             bytes,
             mime: "image/jpeg",
@@ -283,7 +284,7 @@ pub fn generate(
             h,
             vec![f, w as f64 / 2.0, h as f64 / 2.0, k_dist],
         )
-        .map_err(Error::Invalid)?;
+        .map_err(Error::Internal)?;
         let g = opts.gain_range;
         let lighting = Lighting {
             exposure: rng.range(1.0 - g, 1.0 + g) as f32,
@@ -431,13 +432,13 @@ pub fn generate(
         let enc = image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, opts.jpeg_quality);
         photo
             .write_with_encoder(enc)
-            .map_err(|e| Error::Invalid(format!("JPEG: {e}")))?;
+            .map_err(|e| Error::Internal(format!("JPEG encoding in memory: {e}")))?;
         io::write_atomic(&root.join("images").join(name), &bytes)?;
         let mask_name = Path::new(name).with_extension("png");
         let mut png = Vec::new();
         r.coverage
             .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
-            .map_err(|e| Error::Invalid(format!("PNG: {e}")))?;
+            .map_err(|e| Error::Internal(format!("PNG encoding in memory: {e}")))?;
         io::write_atomic(&root.join("masks").join(mask_name), &png)?;
         lighting.insert(name.clone(), *light);
     }

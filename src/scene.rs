@@ -67,11 +67,11 @@ impl SceneSpec {
             (Some(c), _) => Some(if colmap::detect_format(c).is_some() {
                 c.clone()
             } else {
-                colmap::find_model_dir(c).ok_or_else(|| {
-                    Error::Invalid(format!(
-                        "{}: no COLMAP model here (expected cameras.bin or cameras.txt, or sparse/0/)",
-                        c.display()
-                    ))
+                colmap::find_model_dir(c).ok_or_else(|| Error::Directory {
+                    path: c.clone(),
+                    msg: "no COLMAP model here (expected cameras.bin or cameras.txt, or \
+                              sparse/0/)"
+                        .into(),
                 })?
             }),
             (None, Some(d)) => colmap::find_model_dir(d),
@@ -122,19 +122,21 @@ fn find_mesh(dir: &Path) -> Result<Option<PathBuf>> {
     match found.len() {
         0 => Ok(None),
         1 => Ok(found.pop()),
-        _ => Err(Error::Invalid(format!(
-            "{}: several mesh files ({}); choose one with --mesh",
-            dir.display(),
-            found
-                .iter()
-                .map(|p| p
-                    .file_name()
-                    .unwrap_or_default()
-                    .to_string_lossy()
-                    .into_owned())
-                .collect::<Vec<_>>()
-                .join(", ")
-        ))),
+        _ => Err(Error::Directory {
+            path: dir.to_path_buf(),
+            msg: format!(
+                "several mesh files ({}); choose one with --mesh",
+                found
+                    .iter()
+                    .map(|p| p
+                        .file_name()
+                        .unwrap_or_default()
+                        .to_string_lossy()
+                        .into_owned())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        }),
     }
 }
 
@@ -194,17 +196,14 @@ impl Photo {
     /// Probes the file and turns any problem into an error naming it.
     pub fn check(&self) -> Result<()> {
         match self.status() {
-            s @ (PhotoStatus::Ok | PhotoStatus::Missing) => self.verdict(s),
-            s => self.verdict(s).map_err(|e| {
-                Error::Invalid(format!(
-                    "{e} (--skip-bad-images leaves such photographs out)"
-                ))
-            }),
+            s @ (PhotoStatus::Ok | PhotoStatus::Missing) => self.verdict(s, ""),
+            s => self.verdict(s, " (--skip-bad-images leaves such photographs out)"),
         }
     }
 
-    /// A probe's status as a result: an error naming the file for any problem.
-    fn verdict(&self, status: PhotoStatus) -> Result<()> {
+    /// A probe's status as a result: an error naming the file for any problem, `hint`
+    /// appended to a bad photograph's message.
+    fn verdict(&self, status: PhotoStatus, hint: &str) -> Result<()> {
         match status {
             PhotoStatus::Ok => Ok(()),
             PhotoStatus::Missing => Err(Error::io(
@@ -217,14 +216,15 @@ impl Photo {
                     ),
                 ),
             )),
-            PhotoStatus::Unreadable(msg) => {
-                Err(Error::Invalid(format!("image {}: {msg}", self.image_id)))
-            }
+            PhotoStatus::Unreadable(msg) => Err(Error::Photo {
+                image_id: self.image_id,
+                msg: format!("{msg}{hint}"),
+            }),
             PhotoStatus::WrongSize { found, expected } => Err(Error::at_element(
                 &self.path,
                 format!("image {}", self.image_id),
                 format!(
-                    "photograph is {}x{} but camera {} is {}x{}",
+                    "photograph is {}x{} but camera {} is {}x{}{hint}",
                     found.0, found.1, self.view.camera.id, expected.0, expected.1
                 ),
             )),
@@ -333,7 +333,7 @@ impl Scene {
                     // Left for check_photos to report.
                     PhotoStatus::Ok | PhotoStatus::Missing => keep.push(p),
                     bad_status if spec.skip_bad => {
-                        let reason = p.verdict(bad_status).err().map(|e| e.to_string());
+                        let reason = p.verdict(bad_status, "").err().map(|e| e.to_string());
                         bad.push(BadPhoto {
                             name: p.name.clone(),
                             reason: reason.unwrap_or_default(),

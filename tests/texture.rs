@@ -404,7 +404,7 @@ fn seam_levelling_closes_chart_borders_that_deep_pyramids_open() {
         let seams = r.report.seams;
         assert!(seams.chart_border_samples > 1000, "{seams:?}");
         ratios.push(seams.chart_border_ratio);
-        let st = r.resampled.stats.seam_levelling;
+        let st = r.report.merging.seam_levelling;
         assert_eq!(st.is_some(), level);
         if let Some(st) = st {
             assert!(st.border_step_after < 0.5 * st.border_step_before, "{st:?}");
@@ -679,10 +679,12 @@ fn keep_uvs_refuses_what_it_cannot_keep_and_warns_on_overlaps() {
     opts.restoration = scantex::pipeline::Restoration::Off;
     let mut bare = mesh.clone();
     bare.uv = None;
-    let e = texture(&bare, &s.photos, &opts, &Silent)
-        .unwrap_err()
-        .to_string();
-    assert!(e.contains("no texture coordinates"), "{e}");
+    let e = texture(&bare, &s.photos, &opts, &Silent).unwrap_err();
+    assert!(
+        matches!(e, scantex::Error::Mesh { element: scantex::MeshElement::Whole, .. }),
+        "{e:?}"
+    );
+    assert!(e.to_string().contains("no texture coordinates"), "{e}");
     // An atlas folded onto itself (u -> 0.25 + |u - 0.5|): charts from both halves overlap.
     let (mut folded, _) = scantex::atlas::parameterize(mesh, &opts.atlas).unwrap();
     let uv = folded.uv.as_mut().unwrap();
@@ -701,8 +703,11 @@ fn keep_uvs_refuses_what_it_cannot_keep_and_warns_on_overlaps() {
     for k in first {
         off.uv.as_mut().unwrap().coords[k as usize].x += 3.0;
     }
-    let e = texture(&off, &s.photos, &opts, &Silent)
-        .unwrap_err()
-        .to_string();
+    let e = texture(&off, &s.photos, &opts, &Silent).unwrap_err();
+    assert!(
+        matches!(e, scantex::Error::Mesh { element: scantex::MeshElement::Face(0), .. }),
+        "{e:?}"
+    );
+    let e = e.to_string();
     assert!(e.contains("face 0") && e.contains("outside [0, 1]"), "{e}");
 }

@@ -13,6 +13,7 @@ pub mod segment;
 mod test_meshes;
 pub(crate) mod texels;
 
+use crate::error::MeshElement;
 use crate::mesh::{Mesh, UnionFind};
 use nalgebra::Vector2;
 use param::ChartMap;
@@ -201,10 +202,9 @@ impl Atlas {
     /// The atlas of UVs a mesh arrived with (from any tool): charts are the UV islands, faces
     /// joined through shared texture-coordinate indices. Page 0 (u, v in [0, 1]) only.
     pub fn from_uvs(mesh: &Mesh, size: u32) -> crate::Result<Atlas> {
-        let uv = mesh
-            .uv
-            .as_ref()
-            .ok_or_else(|| crate::Error::Invalid("the mesh has no texture coordinates".into()))?;
+        let uv = mesh.uv.as_ref().ok_or_else(|| {
+            crate::Error::mesh(MeshElement::Whole, "it has no texture coordinates")
+        })?;
         let island = uv_islands(uv);
         Atlas::with_charts(mesh, size, &island)
     }
@@ -213,9 +213,10 @@ impl Atlas {
     /// (stage 1's, or UV islands).
     fn with_charts(mesh: &Mesh, size: u32, chart_of: &[u32]) -> crate::Result<Atlas> {
         if !SIZE_RANGE.contains(&size) {
-            return Err(crate::Error::Invalid(format!(
-                "atlas size {size} must lie in {SIZE_RANGE:?}"
-            )));
+            return Err(crate::Error::option(
+                "size",
+                format!("atlas size {size} must lie in {SIZE_RANGE:?}"),
+            ));
         }
         let texels = TexelMap::new(mesh, size)?;
         let mut index_of = std::collections::HashMap::new();
@@ -397,8 +398,9 @@ pub fn build(mut mesh: Mesh, opts: &AtlasOptions) -> crate::Result<(Mesh, Atlas,
 /// Texturing writes one page: faces whose UVs lie outside [0, 1] are refused.
 pub fn keep(mesh: Mesh, size: u32) -> crate::Result<(Mesh, Atlas, AtlasReport)> {
     let Some(uv) = &mesh.uv else {
-        return Err(crate::Error::Invalid(
-            "--keep-uvs: the mesh has no texture coordinates to keep".into(),
+        return Err(crate::Error::mesh(
+            MeshElement::Whole,
+            "--keep-uvs: it has no texture coordinates to keep",
         ));
     };
     let centroid = |f: usize| {
@@ -411,11 +413,14 @@ pub fn keep(mesh: Mesh, size: u32) -> crate::Result<(Mesh, Atlas, AtlasReport)> 
     };
     if let Some(f) = (0..uv.faces.len()).find(|&f| off_page(f)) {
         let c = centroid(f);
-        return Err(crate::Error::Invalid(format!(
-            "--keep-uvs: face {f} lies at texture coordinates ({}, {}), outside [0, 1] (another \
+        return Err(crate::Error::mesh(
+            MeshElement::Face(f),
+            format!(
+                "--keep-uvs: it lies at texture coordinates ({}, {}), outside [0, 1] (another \
              UDIM page, or a repeating texture); texturing writes one page",
-            c.x, c.y
-        )));
+                c.x, c.y
+            ),
+        ));
     }
     // One island map for the atlas and the report; the atlas checks the size first.
     let islands = uv_islands(uv);
@@ -456,14 +461,16 @@ fn layout(
 /// (UDIM pages from the integer part of u). Times are zero.
 pub fn measure(mesh: &Mesh, size: u32) -> crate::Result<AtlasReport> {
     let Some(uv) = &mesh.uv else {
-        return Err(crate::Error::Invalid(
-            "the mesh has no texture coordinates".into(),
+        return Err(crate::Error::mesh(
+            MeshElement::Whole,
+            "it has no texture coordinates",
         ));
     };
     if !(1..=32768).contains(&size) {
-        return Err(crate::Error::Invalid(format!(
-            "atlas size {size} must lie in 1..=32768"
-        )));
+        return Err(crate::Error::option(
+            "size",
+            format!("atlas size {size} must lie in 1..=32768"),
+        ));
     }
     let face_chart = uv_islands(uv);
     let mut m = mesh.clone();

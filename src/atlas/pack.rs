@@ -495,12 +495,15 @@ pub fn pack(
     let size = opts.size as usize;
     let gutter = opts.gutter as usize;
     if size < 2 * gutter + 1 || size > 32768 {
-        return Err(crate::Error::Invalid(format!(
-            "atlas size {} must be between {} and 32768 with a gutter of {}",
-            opts.size,
-            2 * gutter + 1,
-            opts.gutter
-        )));
+        return Err(crate::Error::option(
+            "size",
+            format!(
+                "atlas size {} must be between {} and 32768 with a gutter of {}",
+                opts.size,
+                2 * gutter + 1,
+                opts.gutter
+            ),
+        ));
     }
     let mut charts: Vec<ChartMap> = maps.to_vec();
     for (c, &k) in charts.iter_mut().zip(chart_scale) {
@@ -543,15 +546,19 @@ pub fn pack(
     let (scale, (placements, pages)) = match opts.texels_per_unit {
         Some(s) => {
             if !(s.is_finite() && s > 0.0) {
-                return Err(crate::Error::Invalid(format!(
-                    "texel density {s} must be a positive number"
-                )));
+                return Err(crate::Error::option(
+                    "texel_density",
+                    format!("texel density {s} must be a positive number"),
+                ));
             }
             let r = attempt(&scaled(s), &order, size, gutter, false).ok_or_else(|| {
-                crate::Error::Invalid(format!(
-                    "a chart is larger than a {size}-texel page at {s} texels per unit: lower \
+                crate::Error::option(
+                    "texel_density",
+                    format!(
+                        "a chart is larger than a {size}-texel page at {s} texels per unit: lower \
                      the texel density or raise the atlas size"
-                ))
+                    ),
+                )
             })?;
             (s, r)
         }
@@ -621,11 +628,14 @@ pub fn pack(
                 found = Some((lo, best));
             }
             let Some((lo, (placements, pages))) = found else {
-                return Err(crate::Error::Invalid(format!(
-                    "{} charts do not fit a {size}-texel atlas with a {gutter}-texel gutter: \
+                return Err(crate::Error::option(
+                    "size",
+                    format!(
+                        "{} charts do not fit a {size}-texel atlas with a {gutter}-texel gutter: \
                      raise the atlas size or lower the gutter",
-                    charts.len()
-                )));
+                        charts.len()
+                    ),
+                ));
             };
             (lo, (placements, pages))
         }

@@ -64,7 +64,7 @@ impl TexelMap {
         let uv = mesh
             .uv
             .as_ref()
-            .ok_or_else(|| Error::Invalid("resampling needs a mesh with an atlas".into()))?;
+            .ok_or_else(|| Error::Internal("the texel raster needs a mesh with an atlas".into()))?;
         let s = size as f64;
         let n = size as usize;
         let faces: Vec<Option<FaceRaster>> = (0..mesh.num_faces())

@@ -96,10 +96,10 @@ pub fn detect_format(dir: &Path) -> Option<Format> {
 pub fn read(dir: &Path) -> Result<Reconstruction> {
     match detect_format(dir) {
         Some(f) => read_format(dir, f),
-        None => Err(Error::Invalid(format!(
-            "{}: no COLMAP model (cameras.bin or cameras.txt) found",
-            dir.display()
-        ))),
+        None => Err(Error::Directory {
+            path: dir.to_path_buf(),
+            msg: "no COLMAP model (cameras.bin or cameras.txt) found".into(),
+        }),
     }
 }
 

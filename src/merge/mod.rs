@@ -24,7 +24,7 @@ use crate::photos::for_each_photo_with;
 use crate::progress::Progress;
 use crate::pyramid::{self, Plane};
 use crate::resample::{
-    check_photo_count, resample_with, PhotoSampler, Prepared, ResampleOptions, Resampled,
+    check_photo_count, resample_with, PhotoSampler, ResampleOptions, Resampled, Sampler,
     TexelSource, NO_PHOTO,
 };
 use crate::scene::Photo;
@@ -65,15 +65,15 @@ impl std::fmt::Display for Merge {
 }
 
 impl std::str::FromStr for Merge {
-    type Err = Error;
-    fn from_str(s: &str) -> Result<Self> {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
         match s {
             "none" => Ok(Merge::None),
             "average" => Ok(Merge::Average),
             "multiband" => Ok(Merge::Multiband),
-            _ => Err(Error::Invalid(format!(
+            _ => Err(format!(
                 "unknown merge '{s}' (expected none, average or multiband)"
-            ))),
+            )),
         }
     }
 }
@@ -107,15 +107,15 @@ impl std::fmt::Display for Masks {
 }
 
 impl std::str::FromStr for Masks {
-    type Err = Error;
-    fn from_str(s: &str) -> Result<Self> {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
         match s {
             "paper" => Ok(Masks::Paper),
             "weighted" => Ok(Masks::Weighted),
             "best-view" => Ok(Masks::BestView),
-            _ => Err(Error::Invalid(format!(
+            _ => Err(format!(
                 "unknown masks '{s}' (expected paper, weighted or best-view)"
-            ))),
+            )),
         }
     }
 }
@@ -295,6 +295,21 @@ fn relative_weight(wt: f32, reference: f32) -> f16 {
     }
 }
 
+/// What a multiband merge measured (zero and `None` for `--merge none|average`).
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct MergeStats {
+    /// Thread-seconds spent sampling texels from photographs (the rest of stage 3's
+    /// `seconds_texels` is building and adding the bands).
+    pub cpu_seconds_sampling: f64,
+    /// Seconds of the complement layers, the collapse of every chart and its copy into the
+    /// atlas.
+    pub seconds_collapse: f64,
+    /// Chart-border levelling after the merge, if it ran.
+    pub seam_levelling: Option<level::LevelStats>,
+    /// The same on the restored atlas ([`relevel`]), if it ran (set by the caller).
+    pub seam_levelling_after_restore: Option<level::LevelStats>,
+}
+
 /// Stage 4: the photographs resampled into `atlas` and merged as `mopts` says. `normals` are
 /// unit vertex normals of `mesh`; `binding` and `gains` are stage 2b's.
 #[allow(clippy::too_many_arguments)]
@@ -308,25 +323,31 @@ pub fn merge(
     ropts: &ResampleOptions,
     mopts: &MergeOptions,
     progress: &dyn Progress,
-) -> Result<Resampled> {
+) -> Result<(Resampled, MergeStats)> {
     mopts.validate()?;
-    let prep = Prepared::new(mesh, atlas, normals, binding, gains, ropts)?;
+    let prep = Sampler::new(mesh, atlas, normals, binding, gains, ropts)?;
+    let plain = |winner| {
+        Ok((
+            resample_with(&prep, photos, ropts, winner, progress)?,
+            MergeStats::default(),
+        ))
+    };
     match mopts.merge {
-        Merge::None => resample_with(&prep, photos, ropts, true, progress),
-        Merge::Average => resample_with(&prep, photos, ropts, false, progress),
+        Merge::None => plain(true),
+        Merge::Average => plain(false),
         Merge::Multiband => multiband(&prep, photos, ropts, mopts, progress),
     }
 }
 
 #[allow(clippy::too_many_arguments)]
 fn multiband(
-    prep: &Prepared,
+    prep: &Sampler,
     photos: &[Photo],
     ropts: &ResampleOptions,
     mopts: &MergeOptions,
     progress: &dyn Progress,
-) -> Result<Resampled> {
-    let (mesh, atlas, binding) = (prep.mesh, prep.atlas, prep.binding);
+) -> Result<(Resampled, MergeStats)> {
+    let (mesh, atlas, binding) = (prep.mesh(), prep.atlas(), prep.binding());
     check_photo_count(photos.len())?;
     let n = prep.size();
     let a = mopts.a;
@@ -349,8 +370,7 @@ fn multiband(
         .map(|f| {
             let fv = mesh.faces[f];
             let mut ws: Vec<(f32, u32)> = prep
-                .common
-                .of(f)
+                .photos_of(f)
                 .iter()
                 .map(|&p| {
                     let s: f32 = fv
@@ -469,14 +489,11 @@ fn multiband(
         crate::io::release_freed_memory();
     }
     let seconds_collapse = t_collapse.elapsed().as_secs_f64();
-    let t = std::time::Instant::now();
     let levelling = mopts.level_seams.then(|| {
         let owner = |i: usize| prep.owner(i);
-        let mut st = level::level_seams(mesh, n, &owner, face_chart, &mut color, level::SMOOTHNESS);
-        st.seconds = t.elapsed().as_secs_f64();
-        st
+        level::level_seams(mesh, n, &owner, face_chart, &mut color, level::SMOOTHNESS)
     });
-    let mut out = prep.finish(
+    let out = prep.finish(
         color,
         source,
         views,
@@ -484,10 +501,13 @@ fn multiband(
         ropts,
         (seconds_setup, seconds_charts),
     );
-    out.stats.cpu_seconds_sampling = cpu_sampling.load(Ordering::Relaxed) as f64 * 1e-9;
-    out.stats.seam_levelling = levelling;
-    out.stats.seconds_collapse = seconds_collapse;
-    Ok(out)
+    let stats = MergeStats {
+        cpu_seconds_sampling: cpu_sampling.load(Ordering::Relaxed) as f64 * 1e-9,
+        seconds_collapse,
+        seam_levelling: levelling,
+        seam_levelling_after_restore: None,
+    };
+    Ok((out, stats))
 }
 
 /// Writes chart `ch` (number `ci`) into the atlas arrays `out` (colour, source, views, best
@@ -497,7 +517,7 @@ fn multiband(
 /// [`pyramid::expand`] on the whole chart, without a chart-sized image.
 #[allow(clippy::too_many_arguments)]
 fn write_chart(
-    prep: &Prepared,
+    prep: &Sampler,
     ch: &Chart,
     ci: u32,
     face_chart: &[u32],
@@ -592,19 +612,16 @@ pub fn relevel(
     res: &mut Resampled,
     gutter_fill: u32,
 ) -> Result<level::LevelStats> {
-    let t = std::time::Instant::now();
     let n = res.color.width() as usize;
     if n != atlas.size as usize {
-        return Err(Error::Invalid(
+        return Err(Error::Internal(
             "levelling an atlas with the texels of another size".into(),
         ));
     }
     let own = |i: usize| atlas.owner(i);
     let color: &mut [f32] = &mut res.color;
-    let mut st = level::level_seams(mesh, n, &own, &atlas.face_chart, color, level::SMOOTHNESS);
+    let st = level::level_seams(mesh, n, &own, &atlas.face_chart, color, level::SMOOTHNESS);
     crate::resample::refill_gutter(res, gutter_fill);
-    st.seconds = t.elapsed().as_secs_f64();
-    res.stats.seam_levelling_after_restore = Some(st);
     Ok(st)
 }
 

@@ -8,7 +8,7 @@ use super::*;
 /// under its mask.
 #[allow(clippy::too_many_arguments, clippy::needless_range_loop)]
 pub(super) fn add_photo(
-    prep: &Prepared,
+    prep: &Sampler,
     ph: &PhotoSampler,
     ch: &Chart,
     acc: &mut ChartAcc,
@@ -18,7 +18,7 @@ pub(super) fn add_photo(
     mopts: &MergeOptions,
     cpu_sampling: &AtomicU64,
 ) {
-    let photo = ph.index as u32;
+    let photo = ph.index() as u32;
     if !ch.faces.iter().any(|&f| ph.samples(f)) {
         return;
     }
@@ -59,7 +59,7 @@ pub(super) fn add_photo(
             continue;
         }
         let in_mask = match ring {
-            Some(r) => prep.mesh.faces[f as usize]
+            Some(r) => prep.mesh().faces[f as usize]
                 .iter()
                 .all(|v| r[v.idx()].binary_search(&photo).is_ok()),
             None => true,
@@ -151,7 +151,7 @@ pub(super) fn add_photo(
 /// The complement of the photographs' masks, carrying the vertex-colour texture (the paper's
 /// mask), or with paper masks stage 3's texture where photographs saw the texel.
 pub(super) fn add_complement(
-    prep: &Prepared,
+    prep: &Sampler,
     ch: &Chart,
     ci: u32,
     face_chart: &[u32],

@@ -37,7 +37,7 @@ use classify::*;
 pub use classify::{classify, fill_vertex_colors};
 #[cfg(test)]
 use sampler::*;
-pub(crate) use sampler::{PhotoSampler, Prepared};
+pub use sampler::{PhotoSampler, PhotoSetup, Sampler};
 
 /// The paper's triangle classes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -119,15 +119,6 @@ pub struct ResampleStats {
     /// Seconds spent sampling texels from photographs (with multiband merging: also building
     /// and adding the bands), summed.
     pub seconds_texels: f64,
-    /// Multiband merging: thread-seconds of that spent sampling texels (the rest is pyramids).
-    pub cpu_seconds_sampling: f64,
-    /// Multiband merging: seconds of the complement layers, the collapse of every chart and
-    /// its copy into the atlas.
-    pub seconds_collapse: f64,
-    /// Chart-border levelling after a multiband merge, if it ran.
-    pub seam_levelling: Option<crate::level::LevelStats>,
-    /// The same run again on the restored atlas ([`crate::merge::relevel`]), if it ran.
-    pub seam_levelling_after_restore: Option<crate::level::LevelStats>,
 }
 
 /// The resampled atlas.
@@ -210,8 +201,8 @@ impl Resampled {
 /// No photograph (in [`Resampled::best_photo`]).
 pub const NO_PHOTO: u16 = u16::MAX;
 
-/// Texels record their best photograph in 16 bits.
-pub(crate) fn check_photo_count(n: usize) -> Result<()> {
+/// Checks that `n` photographs fit: texels record their best photograph in 16 bits.
+pub fn check_photo_count(n: usize) -> Result<()> {
     if n >= NO_PHOTO as usize {
         return Err(Error::Invalid(format!(
             "{n} photographs: at most {} can be combined in one atlas",
@@ -237,13 +228,14 @@ pub fn resample(
     winner: bool,
     progress: &dyn Progress,
 ) -> Result<Resampled> {
-    let prep = Prepared::new(mesh, atlas, normals, binding, gains, opts)?;
+    let prep = Sampler::new(mesh, atlas, normals, binding, gains, opts)?;
     resample_with(&prep, photos, opts, winner, progress)
 }
 
-/// [`resample`] with the per-face work done.
-pub(crate) fn resample_with(
-    prep: &Prepared,
+/// [`resample`] with the sampler built: the weighted mean of the samples at each texel
+/// (`winner` false) or the heaviest one (`winner` true).
+pub fn resample_with(
+    prep: &Sampler,
     photos: &[Photo],
     opts: &ResampleOptions,
     winner: bool,
@@ -340,7 +332,7 @@ pub(crate) fn resample_with(
 
 /// Fills `res`'s gutter again from its current chart colours (after a stage changed them),
 /// `width` texels deep.
-pub(crate) fn refill_gutter(res: &mut Resampled, width: u32) {
+pub fn refill_gutter(res: &mut Resampled, width: u32) {
     let n = res.color.width() as usize;
     for s in res.source.iter_mut() {
         if *s == TexelSource::Gutter as u8 {
@@ -353,12 +345,7 @@ pub(crate) fn refill_gutter(res: &mut Resampled, width: u32) {
 
 /// Extends chart colours `width` texels into the empty texels around them, ring by ring (each
 /// new texel the mean of its already-coloured 8-neighbours). Returns the texels filled.
-pub(crate) fn extend_into_gutter(
-    color: &mut [f32],
-    source: &mut [u8],
-    n: usize,
-    width: u32,
-) -> u64 {
+pub fn extend_into_gutter(color: &mut [f32], source: &mut [u8], n: usize, width: u32) -> u64 {
     let empty = TexelSource::Empty as u8;
     let nbrs = |i: usize| {
         let (x, y) = ((i % n) as i64, (i / n) as i64);

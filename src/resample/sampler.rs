@@ -1,5 +1,5 @@
 //! Sampling one photograph into the atlas: the per-face work shared by every way of combining
-//! photographs ([`Prepared`]), a photograph made ready to sample ([`PhotoSampler`]: projected
+//! photographs ([`Sampler`]), a photograph made ready to sample ([`PhotoSampler`]: projected
 //! vertices, depth map, mip pyramid) and the per-texel sampling through per-face affine maps.
 
 use super::*;
@@ -169,17 +169,20 @@ pub(super) fn affine_fits(
     at([t, t, t]) && at([0.5, 0.5, 0.0]) && at([0.0, 0.5, 0.5]) && at([0.5, 0.0, 0.5])
 }
 
-/// The per-face work shared by every way of combining the photographs: which face owns each
-/// texel, the triangle classes, the photographs sampled per face, the filled vertex colours.
-pub(crate) struct Prepared<'a> {
-    pub(crate) mesh: &'a Mesh,
-    pub(crate) normals: &'a [Vector3<f64>],
-    pub(crate) binding: &'a Binding,
+/// Stage 3's photograph sampling, the interface every way of combining photographs uses
+/// (`--merge none|average` in [`super::resample`], multiband in [`crate::merge`]): the per-face
+/// work done once (triangle classes, the photographs each face samples, filled vertex colours),
+/// then per photograph a [`PhotoSampler`] and, per face, [`Sampler::sample_face`]: texel
+/// samples (gain-corrected colour) and their weights.
+pub struct Sampler<'a> {
+    pub(super) mesh: &'a Mesh,
+    pub(super) normals: &'a [Vector3<f64>],
+    pub(super) binding: &'a Binding,
     pub(super) gains: &'a Gains,
-    pub(crate) atlas: &'a Atlas,
-    pub(crate) classes: Vec<FaceClass>,
-    pub(crate) common: Common,
-    pub(crate) vertex_colors: Vec<[f32; 3]>,
+    pub(super) atlas: &'a Atlas,
+    pub(super) classes: Vec<FaceClass>,
+    pub(super) common: Common,
+    pub(super) vertex_colors: Vec<[f32; 3]>,
     pub(super) filled_per_round: [u64; 5],
     pub(super) vertices_unreachable: u64,
     pub(super) mean_edge: f64,
@@ -187,25 +190,26 @@ pub(crate) struct Prepared<'a> {
     pub(super) identity: bool,
 }
 
-/// What [`Prepared::photo_setup`] computes for a photograph.
-pub(crate) struct PhotoSetup {
+/// What [`Sampler::photo_setup`] computes for a photograph (owned, so that it can be built
+/// beside the work on the previous photograph).
+pub struct PhotoSetup {
     pub(super) depth: Option<DepthMap>,
     pub(super) levels: Vec<Rgb32FImage>,
     pub(super) projected: Vec<Option<[f64; 3]>>,
     pub(super) sampled: Vec<u64>,
     /// Seconds it took.
-    pub(crate) seconds: f64,
+    pub seconds: f64,
 }
 
 /// One photograph ready to be sampled: its projected vertices, depth map, mip pyramid and
 /// the faces that sample it.
-pub(crate) struct PhotoSampler<'a> {
-    pub(crate) index: usize,
+pub struct PhotoSampler<'a> {
+    pub(super) index: usize,
     pub(super) view: &'a PosedCamera,
     pub(super) depth: Option<DepthMap>,
     /// Every vertex projected: photo pixel and camera depth (shared with the depth map).
     pub(super) projected: Vec<Option<[f64; 3]>>,
-    /// Bit per face: whether the face samples this photograph ([`Prepared::samples`]).
+    /// Bit per face: whether the face samples this photograph ([`Sampler::samples`]).
     pub(super) sampled: Vec<u64>,
     pub(super) pyramid: PhotoPyramid<'a>,
     pub(super) mask: Option<&'a GrayImage>,
@@ -214,16 +218,21 @@ pub(crate) struct PhotoSampler<'a> {
 }
 
 impl PhotoSampler<'_> {
+    /// The photograph's index in the photo list.
+    pub fn index(&self) -> usize {
+        self.index
+    }
+
     /// Whether face `f` samples this photograph.
     #[inline]
-    pub(crate) fn samples(&self, f: u32) -> bool {
+    pub fn samples(&self, f: u32) -> bool {
         self.sampled[f as usize / 64] >> (f % 64) & 1 == 1
     }
 }
 
-impl<'a> Prepared<'a> {
+impl<'a> Sampler<'a> {
     /// Checks the inputs and does the per-face work for `atlas`.
-    pub(crate) fn new(
+    pub fn new(
         mesh: &'a Mesh,
         atlas: &'a Atlas,
         normals: &'a [Vector3<f64>],
@@ -235,7 +244,7 @@ impl<'a> Prepared<'a> {
             || normals.len() != mesh.num_vertices()
             || atlas.face_chart.len() != mesh.num_faces()
         {
-            return Err(Error::Invalid(
+            return Err(Error::Internal(
                 "binding, normals and atlas must belong to the mesh being resampled".into(),
             ));
         }
@@ -256,7 +265,7 @@ impl<'a> Prepared<'a> {
         let classes = classes_from(mesh, binding, &common);
         let (vertex_colors, filled_per_round, vertices_unreachable) =
             fill_vertex_colors(mesh, &binding.vertex_colors());
-        Ok(Prepared {
+        Ok(Sampler {
             mesh,
             normals,
             binding,
@@ -273,30 +282,50 @@ impl<'a> Prepared<'a> {
         })
     }
 
+    /// The mesh being sampled.
+    pub fn mesh(&self) -> &'a Mesh {
+        self.mesh
+    }
+
+    /// The binding the samples follow.
+    pub fn binding(&self) -> &'a Binding {
+        self.binding
+    }
+
+    /// The atlas being filled.
+    pub fn atlas(&self) -> &'a Atlas {
+        self.atlas
+    }
+
     /// Atlas side in texels.
-    pub(crate) fn size(&self) -> usize {
+    pub fn size(&self) -> usize {
         self.atlas.texels.size
     }
 
     /// Face owning texel `i` (row-major), if any.
-    pub(crate) fn owner(&self, i: usize) -> Option<u32> {
+    pub fn owner(&self, i: usize) -> Option<u32> {
         self.atlas.owner(i)
     }
 
+    /// The photographs face `f` samples, ascending.
+    pub fn photos_of(&self, f: usize) -> &[u32] {
+        self.common.of(f)
+    }
+
     /// Whether face `f` samples photograph `photo`.
-    pub(crate) fn samples(&self, f: usize, photo: u32) -> bool {
+    pub fn samples(&self, f: usize, photo: u32) -> bool {
         self.common.of(f).binary_search(&photo).is_ok()
     }
 
     /// Texel rows and columns (inclusive) face `f` may own, if it lies on the page.
-    pub(crate) fn face_rect(&self, f: usize) -> Option<((usize, usize), (usize, usize))> {
+    pub fn face_rect(&self, f: usize) -> Option<((usize, usize), (usize, usize))> {
         self.atlas.face_rect(f)
     }
 
     /// The part of getting photograph `pi` (decoded as `rgb`) ready to sample that takes
     /// time: its projected vertices, depth map, mip levels and the faces that sample it,
     /// owned, so that it can run beside the work on the previous photograph.
-    pub(crate) fn photo_setup(&self, photos: &[Photo], pi: usize, rgb: &PhotoPixels) -> PhotoSetup {
+    pub fn photo_setup(&self, photos: &[Photo], pi: usize, rgb: &PhotoPixels) -> PhotoSetup {
         let view = &photos[pi].view;
         let t = std::time::Instant::now();
         let projected = crate::depth::project_vertices(self.mesh, view);
@@ -326,7 +355,7 @@ impl<'a> Prepared<'a> {
     }
 
     /// Photograph `pi` (decoded as `rgb`, with its mask) ready to sample, from its `setup`.
-    pub(crate) fn photo_with(
+    pub fn photo_with(
         &self,
         photos: &'a [Photo],
         pi: usize,
@@ -357,7 +386,7 @@ impl<'a> Prepared<'a> {
     /// With `coarse` = Some((x, y)), only the texels at even offsets from (x, y) are sampled,
     /// each over twice the footprint (standing for the 2 x 2 texels from it).
     #[allow(clippy::too_many_arguments)]
-    pub(crate) fn sample_face(
+    pub fn sample_face(
         &self,
         ph: &PhotoSampler,
         f: u32,
@@ -479,7 +508,7 @@ impl<'a> Prepared<'a> {
     }
 
     /// Face `f`'s vertex colours interpolated at texel (x, y).
-    pub(crate) fn vertex_color_at(&self, f: u32, x: usize, y: usize) -> [f32; 3] {
+    pub fn vertex_color_at(&self, f: u32, x: usize, y: usize) -> [f32; 3] {
         let r = self.atlas.texels.faces[f as usize]
             .as_ref()
             .expect("owners rasterise");
@@ -493,7 +522,7 @@ impl<'a> Prepared<'a> {
     }
 
     /// Source of a chart texel of face `f` no photograph coloured.
-    pub(crate) fn fallback_source(&self, f: u32) -> TexelSource {
+    pub fn fallback_source(&self, f: u32) -> TexelSource {
         match self.classes[f as usize] {
             FaceClass::Green => TexelSource::GreenFallback,
             FaceClass::Blue => TexelSource::Blue,
@@ -502,7 +531,7 @@ impl<'a> Prepared<'a> {
     }
 
     /// Fills the gutter and counts: the last step of every merge.
-    pub(crate) fn finish(
+    pub fn finish(
         &self,
         mut color: Vec<f32>,
         mut source: Vec<u8>,
@@ -528,10 +557,6 @@ impl<'a> Prepared<'a> {
             vertices_unreachable: self.vertices_unreachable,
             seconds_photo_setup: seconds.0,
             seconds_texels: seconds.1,
-            cpu_seconds_sampling: 0.0,
-            seconds_collapse: 0.0,
-            seam_levelling: None,
-            seam_levelling_after_restore: None,
         };
         Resampled {
             color: Rgb32FImage::from_raw(n as u32, n as u32, color).expect("sized n*n*3"),

@@ -290,11 +290,14 @@ pub fn inpaint(
     let texels = fill.iter().filter(|&&f| f).count() as u64;
     let dims = ch * (12 + 9 + opts.levels.saturating_sub(2));
     if dims > synth::MAX_DIMS {
-        return Err(Error::Invalid(format!(
-            "inpaint: {} levels make {dims}-number neighbourhoods; at most {} are supported",
-            opts.levels,
-            synth::MAX_DIMS
-        )));
+        return Err(Error::option(
+            "levels",
+            format!(
+                "inpaint: {} levels make {dims}-number neighbourhoods; at most {} are supported",
+                opts.levels,
+                synth::MAX_DIMS
+            ),
+        ));
     }
     let wall = Instant::now();
     let mut report = RestoreReport {
