@@ -86,6 +86,13 @@ enum Command {
         /// Output directory.
         #[arg(short, long)]
         out: PathBuf,
+        /// Atlas side in texels, or auto: from the photographs (two texels per axis for each
+        /// pixel that sees the surface in its best view, rounded up to a power of two).
+        #[arg(long, default_value_t = scantex::pipeline::TextureOptions::default().size, allow_negative_numbers = true)]
+        size: scantex::pipeline::AtlasSize,
+        /// The largest side --size auto may choose.
+        #[arg(long, default_value_t = scantex::pipeline::TextureOptions::default().max_size, allow_negative_numbers = true, value_parser = number_in(scantex::atlas::SIZE_RANGE))]
+        max_size: u32,
         #[command(flatten)]
         atlas: AtlasArgs,
         /// Keep the UVs the mesh arrived with (unwrapped by another tool: Blender, xatlas,
@@ -257,6 +264,9 @@ enum Command {
         /// as <stem>_layout.png.
         #[arg(short, long)]
         out: PathBuf,
+        /// Atlas size in texels.
+        #[arg(long, default_value_t = scantex::atlas::AtlasOptions::default().pack.size, allow_negative_numbers = true, value_parser = number_in(scantex::atlas::SIZE_RANGE))]
+        size: u32,
         #[command(flatten)]
         atlas: AtlasArgs,
         /// Viewing direction V of the important view (from the eye towards the object), x,y,z.
@@ -410,9 +420,6 @@ fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
 /// The atlas options `texture` and `param` share.
 #[derive(Args)]
 struct AtlasArgs {
-    /// Atlas size in texels.
-    #[arg(long, default_value_t = scantex::atlas::AtlasOptions::default().pack.size, allow_negative_numbers = true, value_parser = number_in(scantex::atlas::SIZE_RANGE))]
-    size: u32,
     /// Gutter between charts, in texels.
     #[arg(long, default_value_t = scantex::atlas::AtlasOptions::default().pack.gutter, allow_negative_numbers = true, value_parser = number_in(0u32..=16384))]
     gutter: u32,
@@ -426,7 +433,6 @@ struct AtlasArgs {
 
 impl AtlasArgs {
     fn apply(&self, opts: &mut scantex::atlas::AtlasOptions) {
-        opts.pack.size = self.size;
         opts.pack.gutter = self.gutter;
         opts.flatten.stretch.k = self.k;
         opts.flatten.stretch.alpha = self.alpha;
@@ -557,6 +563,8 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
         Command::Texture {
             scene,
             out,
+            size,
+            max_size,
             atlas,
             keep_uvs,
             method,
@@ -591,6 +599,8 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             use scantex::pipeline::{TextureOptions, ViewWeight};
             let mut opts = TextureOptions::for_method(method);
             atlas.apply(&mut opts.atlas);
+            opts.size = size;
+            opts.max_size = max_size;
             opts.keep_uvs = keep_uvs;
             opts.view_weight = match (view_dir, no_view_weight) {
                 (_, true) => ViewWeight::Off,
@@ -649,10 +659,12 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             let r = &result.report;
             let total = r.seconds;
             eprintln!(
-                "textured {} faces from {} photographs in {:.1} s: {} of {} vertices bound; \
-                 triangles {} green, {} blue, {} red; wrote {}",
+                "textured {} faces from {} photographs into a {}{} atlas in {:.1} s: {} of {} \
+                 vertices bound; triangles {} green, {} blue, {} red; wrote {}",
                 r.faces,
                 r.photos,
+                r.atlas_size,
+                if r.auto_size.is_some() { " (auto)" } else { "" },
                 total,
                 r.vertices_bound,
                 r.vertices,
@@ -666,6 +678,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
         Command::Param {
             mesh,
             out,
+            size,
             atlas,
             view_dir,
             report,
@@ -673,6 +686,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             uniform_density,
         } => {
             let mut opts = scantex::atlas::AtlasOptions::default();
+            opts.pack.size = size;
             atlas.apply(&mut opts);
             opts.flatten.stretch.view_dir = view_dir.map(nalgebra::Vector3::from);
             opts.pack.texels_per_unit = texel_density;

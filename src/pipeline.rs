@@ -75,6 +75,47 @@ impl std::str::FromStr for TextureFormat {
     }
 }
 
+/// The atlas page's side when texturing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum AtlasSize {
+    /// From the photographs ([`atlas::density::auto_size`]): two texels per axis for every
+    /// photograph pixel that covers the surface in its best view, rounded up to a power of
+    /// two, at most [`TextureOptions::max_size`].
+    #[default]
+    Auto,
+    /// This many texels per side.
+    Fixed(u32),
+}
+
+impl std::fmt::Display for AtlasSize {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            AtlasSize::Auto => f.write_str("auto"),
+            AtlasSize::Fixed(n) => write!(f, "{n}"),
+        }
+    }
+}
+
+impl std::str::FromStr for AtlasSize {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        if s == "auto" {
+            return Ok(AtlasSize::Auto);
+        }
+        let (lo, hi) = (atlas::SIZE_RANGE.start(), atlas::SIZE_RANGE.end());
+        match s.trim().parse::<i64>() {
+            Ok(n) if (*lo as i64..=*hi as i64).contains(&n) => Ok(AtlasSize::Fixed(n as u32)),
+            Ok(_) => Err(format!(
+                "{s} is out of range: expected auto or a number from {lo} to {hi}"
+            )),
+            Err(_) => Err(format!(
+                "'{s}' is not a valid number: expected auto or a number from {lo} to {hi}"
+            )),
+        }
+    }
+}
+
 /// Stage 5 on the atlas.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -107,10 +148,15 @@ impl Default for Restoration {
 }
 
 /// Everything `scantex texture` can be told.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TextureOptions {
-    /// Atlas (size, gutter, stretch). Default: [`AtlasOptions::default`] (4096, gutter 4).
+    /// Atlas (gutter, stretch). Default: [`AtlasOptions::default`] (gutter 4); its
+    /// `pack.size` is set from `size` when texturing.
     pub atlas: AtlasOptions,
+    /// The atlas page's side. Default: [`AtlasSize::Auto`], from the photographs.
+    pub size: AtlasSize,
+    /// The largest side [`AtlasSize::Auto`] may choose. Default: 8192.
+    pub max_size: u32,
     /// Where the view weight's direction comes from. Default: mean photo direction.
     pub view_weight: ViewWeight,
     /// Binding (method, background, consistency, weights).
@@ -131,6 +177,24 @@ pub struct TextureOptions {
     /// Keep the UVs the mesh arrived with (unwrapped by another tool) instead of making an
     /// atlas: the texture is resampled into that layout, page 0 only. Default: false.
     pub keep_uvs: bool,
+}
+
+impl Default for TextureOptions {
+    fn default() -> Self {
+        TextureOptions {
+            atlas: AtlasOptions::default(),
+            size: AtlasSize::default(),
+            max_size: 8192,
+            view_weight: ViewWeight::default(),
+            bind: BindOptions::default(),
+            photometric: PhotometricOptions::default(),
+            resample: ResampleOptions::default(),
+            merge: MergeOptions::default(),
+            restoration: Restoration::default(),
+            format: TextureFormat::default(),
+            keep_uvs: false,
+        }
+    }
 }
 
 impl TextureOptions {
@@ -158,6 +222,18 @@ impl TextureOptions {
         self.bind.validate()?;
         self.photometric.validate()?;
         self.merge.validate()?;
+        let fixed = match self.size {
+            AtlasSize::Fixed(n) => Some(("size", n)),
+            AtlasSize::Auto => None,
+        };
+        for (name, n) in fixed.into_iter().chain([("max_size", self.max_size)]) {
+            if !atlas::SIZE_RANGE.contains(&n) {
+                return Err(Error::option(
+                    name,
+                    format!("{n} texels: expected a side in {:?}", atlas::SIZE_RANGE),
+                ));
+            }
+        }
         if self.atlas.pack.texels_per_unit.is_some() {
             return Err(Error::option(
                 "texel_density",
@@ -203,6 +279,10 @@ pub struct TextureReport {
     pub warnings: Vec<String>,
     /// The view direction the atlas weighted by, if any.
     pub view_dir: Option<[f64; 3]>,
+    /// The atlas page's side, texels.
+    pub atlas_size: u32,
+    /// How `--size auto` chose it, if it did.
+    pub auto_size: Option<atlas::density::AutoSize>,
     /// The atlas stage's report.
     pub atlas: AtlasReport,
     /// Vertices with at least one valid photograph.
@@ -295,11 +375,20 @@ pub fn texture(
     }
     welded.weld();
     let normals = welded.vertex_normals();
+    let auto_size = (opts.size == AtlasSize::Auto).then(|| {
+        let views: Vec<_> = photos.iter().map(|p| &p.view).collect();
+        atlas::density::auto_size(&welded, &views, opts.max_size)
+    });
+    atlas_opts.pack.size = match (opts.size, auto_size) {
+        (AtlasSize::Fixed(n), _) => n,
+        (AtlasSize::Auto, Some(a)) => a.size,
+        (AtlasSize::Auto, None) => unreachable!("auto_size is computed for AtlasSize::Auto"),
+    };
     let (atlas_done, bind_done) = rayon::join(
         || {
             let mut t = Instant::now();
             let built = if opts.keep_uvs {
-                atlas::keep(welded.clone(), opts.atlas.pack.size)
+                atlas::keep(welded.clone(), atlas_opts.pack.size)
             } else {
                 atlas::build(welded.clone(), &atlas_opts)
             };
@@ -400,6 +489,8 @@ pub fn texture(
         photos_bad: Vec::new(),
         warnings,
         view_dir: view_dir.map(|v| [v.x, v.y, v.z]),
+        atlas_size: atlas_opts.pack.size,
+        auto_size,
         atlas: atlas_report,
         vertices_bound: binding.bound_vertices(),
         vertices_unbound: m.num_vertices() - binding.bound_vertices(),

@@ -1259,9 +1259,14 @@ fn help_shows_the_library_defaults_and_exit_codes() {
     for (flag, value) in [
         (
             "--size",
-            scantex::atlas::AtlasOptions::default()
-                .pack
+            scantex::pipeline::TextureOptions::default()
                 .size
+                .to_string(),
+        ),
+        (
+            "--max-size",
+            scantex::pipeline::TextureOptions::default()
+                .max_size
                 .to_string(),
         ),
         ("--method", b.method.to_string()),

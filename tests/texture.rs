@@ -21,6 +21,14 @@ const RED: [u8; 3] = [220, 25, 25];
 
 /// Appends an axis-aligned box, each side an `n` x `n` grid of quads (two triangles each)
 /// mapped onto `uv` (a rectangle in texture space).
+/// The default options with a fixed atlas side (tests pick small atlases to stay fast).
+fn sized(n: u32) -> TextureOptions {
+    TextureOptions {
+        size: scantex::pipeline::AtlasSize::Fixed(n),
+        ..Default::default()
+    }
+}
+
 fn add_box(m: &mut Mesh, lo: [f64; 3], hi: [f64; 3], n: u32, uv: [f32; 4]) {
     // Sides as (origin corner, two edge axes) with u x v pointing outwards.
     let sides: [([f64; 3], [f64; 3], [f64; 3]); 6] = {
@@ -193,8 +201,7 @@ fn no_texel_takes_colour_from_an_occluder() {
     };
     scantex::sample::generate(&truth, &tex, &sample, dir.path()).unwrap();
     let truth_glb = dir.path().join("truth/model.glb");
-    let mut opts = TextureOptions::default();
-    opts.atlas.pack.size = 512;
+    let opts = sized(512);
     let robust = dir.path().join("robust");
     texture_to(dir.path(), &opts, &robust);
     let (bad, total) = red_on_green(&robust.join("model.obj"), &truth_glb, dir.path());
@@ -220,8 +227,7 @@ fn no_texel_takes_colour_from_an_occluder() {
 fn sample_texture_is_complete_and_accounted_for() {
     let s = torus();
     let (mesh, _) = s.mesh.as_ref().unwrap();
-    let mut opts = TextureOptions::default();
-    opts.atlas.pack.size = 1024;
+    let opts = sized(1024);
     let r = texture(mesh, &s.photos, &opts, &Silent).unwrap();
     let rep = &r.report;
     assert_eq!(rep.vertices_bound + rep.vertices_unbound, rep.vertices);
@@ -266,7 +272,7 @@ fn default_beats_paper_on_held_out_views() {
         ("paper", TextureOptions::paper()),
         ("default", TextureOptions::default()),
     ] {
-        opts.atlas.pack.size = 2048;
+        opts.size = scantex::pipeline::AtlasSize::Fixed(2048);
         let out = dir.path().join(name);
         texture_to(&scene, &opts, &out);
         psnr.push(held_out(&scene, &out).psnr);
@@ -284,8 +290,7 @@ fn multiband_hides_view_seams_that_winner_take_all_shows() {
     let (mesh, _) = s.mesh.as_ref().unwrap();
     let mut ratios = Vec::new();
     for merge in [Merge::None, Merge::Average, Merge::Multiband] {
-        let mut opts = TextureOptions::default();
-        opts.atlas.pack.size = 1024;
+        let mut opts = sized(1024);
         opts.photometric.model = scantex::photometric::GainModel::Off;
         opts.merge.merge = merge;
         let r = texture(mesh, &s.photos, &opts, &Silent).unwrap();
@@ -323,8 +328,7 @@ fn blending_the_finest_band_closes_the_best_view_steps() {
     let dir = tempfile::tempdir().unwrap();
     let mut runs = Vec::new();
     for exponent in [f32::INFINITY, 2.0] {
-        let mut opts = TextureOptions::default();
-        opts.atlas.pack.size = 2048;
+        let mut opts = sized(2048);
         opts.merge.fine_exponent = exponent;
         let out = dir.path().join(format!("e{exponent}"));
         let seams = texture_to(&scene, &opts, &out).seams;
@@ -348,8 +352,7 @@ fn coarse_sampling_of_the_lighter_views_keeps_the_texture() {
     let (mesh, _) = s.mesh.as_ref().unwrap();
     let mut runs = Vec::new();
     for full_views in [0, 2] {
-        let mut opts = TextureOptions::default();
-        opts.atlas.pack.size = 1024;
+        let mut opts = sized(1024);
         opts.merge.full_views = full_views;
         runs.push(texture(mesh, &s.photos, &opts, &Silent).unwrap());
     }
@@ -396,8 +399,7 @@ fn seam_levelling_closes_chart_borders_that_deep_pyramids_open() {
     let (mesh, _) = s.mesh.as_ref().unwrap();
     let mut ratios = Vec::new();
     for level in [false, true] {
-        let mut opts = TextureOptions::default();
-        opts.atlas.pack.size = 1024;
+        let mut opts = sized(1024);
         opts.merge.levels = 6;
         opts.merge.level_seams = level;
         let r = texture(mesh, &s.photos, &opts, &Silent).unwrap();
@@ -439,9 +441,12 @@ fn cli_texture_writes_every_output_and_a_texture_that_renders() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
     let debug = dir.path().join("debug");
+    // --size auto asks for more than the cap on the sample: the cap holds, and the report says so.
     let (ok, err) = texture!(
         "samples/torus",
         "--size",
+        "auto",
+        "--max-size",
         "1024",
         "-o",
         out,
@@ -474,6 +479,13 @@ fn cli_texture_writes_every_output_and_a_texture_that_renders() {
     assert!(names.iter().all(|n| !n.contains(".tmp")), "{names:?}");
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    let png = image::open(out.join("model.png")).unwrap();
+    assert_eq!((png.width(), png.height()), (1024, 1024));
+    assert_eq!(report["atlas_size"], 1024);
+    let auto = &report["auto_size"];
+    assert_eq!(auto["size"], 1024);
+    assert_eq!(auto["capped"], true);
+    assert!(auto["needed"].as_f64().unwrap() > 1024.0, "{auto}");
     for key in [
         "vertices_bound",
         "vertices_unbound",
@@ -618,8 +630,7 @@ fn black_masks_bind_nothing() {
     })
     .unwrap();
     let (mesh, _) = s.mesh.as_ref().unwrap();
-    let mut opts = TextureOptions::default();
-    opts.atlas.pack.size = 256;
+    let opts = sized(256);
     let err = texture(mesh, &s.photos, &opts, &Silent)
         .unwrap_err()
         .to_string();
@@ -636,8 +647,7 @@ fn black_masks_bind_nothing() {
 fn keep_uvs_textures_into_the_given_layout() {
     let scene = common::root().join("samples/torus");
     let dir = tempfile::tempdir().unwrap();
-    let mut opts = TextureOptions::default();
-    opts.atlas.pack.size = 1024;
+    let mut opts = sized(1024);
     let first = dir.path().join("first");
     texture_to(&scene, &opts, &first);
     let (given, _) = scantex::io::read_mesh(&first.join("model.obj")).unwrap();
@@ -673,15 +683,20 @@ fn keep_uvs_textures_into_the_given_layout() {
 fn keep_uvs_refuses_what_it_cannot_keep_and_warns_on_overlaps() {
     let s = torus();
     let (mesh, _) = s.mesh.as_ref().unwrap();
-    let mut opts = TextureOptions::default();
-    opts.atlas.pack.size = 256;
+    let mut opts = sized(256);
     opts.keep_uvs = true;
     opts.restoration = scantex::pipeline::Restoration::Off;
     let mut bare = mesh.clone();
     bare.uv = None;
     let e = texture(&bare, &s.photos, &opts, &Silent).unwrap_err();
     assert!(
-        matches!(e, scantex::Error::Mesh { element: scantex::MeshElement::Whole, .. }),
+        matches!(
+            e,
+            scantex::Error::Mesh {
+                element: scantex::MeshElement::Whole,
+                ..
+            }
+        ),
         "{e:?}"
     );
     assert!(e.to_string().contains("no texture coordinates"), "{e}");
@@ -705,7 +720,13 @@ fn keep_uvs_refuses_what_it_cannot_keep_and_warns_on_overlaps() {
     }
     let e = texture(&off, &s.photos, &opts, &Silent).unwrap_err();
     assert!(
-        matches!(e, scantex::Error::Mesh { element: scantex::MeshElement::Face(0), .. }),
+        matches!(
+            e,
+            scantex::Error::Mesh {
+                element: scantex::MeshElement::Face(0),
+                ..
+            }
+        ),
         "{e:?}"
     );
     let e = e.to_string();

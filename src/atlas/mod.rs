@@ -5,6 +5,7 @@
 //! into atlas pages by rasterised footprints ([`pack`]). [`parameterize`] runs it all;
 //! [`measure`] reports on any mesh's existing UVs.
 
+pub mod density;
 pub mod optimize;
 pub mod pack;
 pub mod param;
