@@ -18,8 +18,9 @@ pub const EXPECTED_UTILISATION: f64 = 0.7;
 /// The smallest size chosen.
 pub const MIN_SIZE: u32 = 256;
 /// At most this many faces are visited (an even stride through the rest); the sum is scaled
-/// to the whole surface's area.
-const MAX_FACES: usize = 200_000;
+/// to the whole surface's area. Each is projected into every photograph, so this bounds the
+/// cost at 1,000 photographs to 50M projections.
+const MAX_FACES: usize = 50_000;
 
 /// What [`auto_size`] measured and chose.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
