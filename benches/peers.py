@@ -8,15 +8,16 @@ scores of every texture (`scantex eval --gain-fit`).
     pip install pymeshlab pycolmap        # MeshLab 2025.7 and a COLMAP model reader
     apt-get install xvfb libqt5gui5 libgl1-mesa-dri   # MeshLab's filter needs an OpenGL context
     python3 benches/peers.py [--baseline OLD_SCANTEX] [--scenes sample,corset,floor_patch]
+                             [--scantex-args "--size 1024"]   # added to both scantex runs
 
 MeshLab: `compute_texcoord_parametrization_and_texture_from_registered_rasters` (the filter
 the issue calls `compute_texmap_from_registered_rasters`, renamed in MeshLab 2022) on the same
 mesh and photographs, with an atlas of scantex's default size (4096), run under `xvfb-run`
 with Mesa's software OpenGL. The COLMAP model is converted to a Bundler file first (not
 timed): Bundler cannot hold a principal point off the centre (these scenes' are within half a
-pixel of it) and MeshLab ignores Bundler's radial distortion (the sample's and the corset's
-SIMPLE_RADIAL k is about -0.05: MeshLab's colours land up to a few pixels off near the image
-borders; floor_patch's photographs are undistorted).
+pixel of it); SIMPLE_RADIAL's k is written as Bundler's k1 (the sample's and the corset's are
+about -0.05; floor_patch's photographs are undistorted), and whether MeshLab's filter applies
+it was not checked.
 
 Scenes:
   * sample: samples/torus, held out: its 4 held-out views;
@@ -29,6 +30,7 @@ Times come from /usr/bin/time (wall, user + system, maximum resident set), one r
 import argparse
 import json
 import os
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -37,6 +39,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DATA = os.path.join(ROOT, "..", "shared", "data")
 BIN = os.path.join(ROOT, "target", "release", "scantex")
 SIZE = 4096
+EXTRA = []  # --scantex-args
 QT = "/usr/lib/x86_64-linux-gnu/qt5/plugins"
 
 # The timed MeshLab process (`python3 -c MESHLAB_JOB mesh dir size`, inside xvfb-run).
@@ -111,7 +114,7 @@ def scene_rows(name, tex_args, mesh, model, images, names, eval_args, baseline, 
     tools = [("scantex", BIN)] + ([("scantex (baseline)", baseline)] if baseline else [])
     for label, exe in tools:
         out = os.path.join(tmp, name, label.replace(" ", "_"))
-        w, c, m = timed([exe, "texture", "-q", "-o", out] + tex_args)
+        w, c, m = timed([exe, "texture", "-q", "-o", out] + tex_args + EXTRA)
         rows.append((label, w, c, m, evaluate(os.path.join(out, "model.obj"), eval_args, tmp)))
         print(f"{name}: {label} {w:.1f} s", file=sys.stderr)
     d = os.path.join(tmp, name, "meshlab")
@@ -135,7 +138,10 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--baseline", help="a previous scantex binary to run beside this one")
     ap.add_argument("--scenes", default="sample,corset,floor_patch")
+    ap.add_argument("--scantex-args", default="", help="options added to every scantex texture")
     a = ap.parse_args()
+    global EXTRA
+    EXTRA = shlex.split(a.scantex_args)
     if not os.path.exists(BIN):
         sys.exit("build first: cargo build --release")
     scenes = a.scenes.split(",")

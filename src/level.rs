@@ -22,7 +22,7 @@
 //! differences along a border do not pull. Solved by conjugate gradients with a Jacobi
 //! preconditioner, matrix-free.
 
-use crate::atlas::texels::border_samples;
+use crate::atlas::texels::{border_samples, texel_point};
 use crate::mesh::Mesh;
 use nalgebra::Vector2;
 use rayon::prelude::*;
@@ -103,10 +103,7 @@ pub fn level_seams(
         return LevelStats::default();
     };
     let s = n as f64;
-    let texel = |c: u32| {
-        let q = uv.coords[c as usize];
-        Vector2::new(q.x as f64 * s, (1.0 - q.y as f64) * s)
-    };
+    let texel = |c: u32| texel_point(uv, c, n);
     // Bilinear colour at texel coordinates from the texels of `chart` only, so that gutter and
     // neighbouring charts never enter a read.
     let read = |p: Vector2<f64>, chart: u32| -> Option<V3> {
@@ -477,12 +474,7 @@ mod tests {
         };
         let n = 64;
         let uv = mesh.uv.as_ref().unwrap();
-        let tri = |f: usize| -> [Vector2<f64>; 3] {
-            uv.faces[f].map(|c| {
-                let q = uv.coords[c as usize];
-                Vector2::new(q.x as f64 * n as f64, (1.0 - q.y as f64) * n as f64)
-            })
-        };
+        let tri = |f: usize| -> [Vector2<f64>; 3] { uv.faces[f].map(|c| texel_point(uv, c, n)) };
         // Owner: the face whose triangle holds the texel centre, grown by one texel.
         let owner_map: Vec<Option<u32>> = (0..n * n)
             .map(|i| {

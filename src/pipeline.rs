@@ -375,14 +375,17 @@ pub fn texture(
     }
     welded.weld();
     let normals = welded.vertex_normals();
-    let auto_size = (opts.size == AtlasSize::Auto).then(|| {
-        let views: Vec<_> = photos.iter().map(|p| &p.view).collect();
-        atlas::density::auto_size(&welded, &views, opts.max_size)
-    });
-    atlas_opts.pack.size = match (opts.size, auto_size) {
-        (AtlasSize::Fixed(n), _) => n,
-        (AtlasSize::Auto, Some(a)) => a.size,
-        (AtlasSize::Auto, None) => unreachable!("auto_size is computed for AtlasSize::Auto"),
+    let auto_size = match opts.size {
+        AtlasSize::Fixed(n) => {
+            atlas_opts.pack.size = n;
+            None
+        }
+        AtlasSize::Auto => {
+            let views: Vec<_> = photos.iter().map(|p| &p.view).collect();
+            let a = atlas::density::auto_size(&welded, &views, opts.max_size);
+            atlas_opts.pack.size = a.size;
+            Some(a)
+        }
     };
     let (atlas_done, bind_done) = rayon::join(
         || {

@@ -4,7 +4,7 @@
 //! in every later stage and add nothing the photographs saw.
 
 use crate::camera::PosedCamera;
-use crate::mesh::Mesh;
+use crate::mesh::{FaceId, Mesh};
 use nalgebra::Point3;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -57,8 +57,8 @@ pub fn auto_size(mesh: &Mesh, views: &[&PosedCamera], max_size: u32) -> AutoSize
         .map(|chunk| {
             let mut acc = [0f64; 3]; // area, area seen, pixels
             for &f in chunk {
-                let [a, b, c] = mesh.faces[f].map(|v| mesh.positions[v.idx()]);
-                let cross = (b - a).cross(&(c - a));
+                let [a, b, c] = mesh.triangle(FaceId(f as u32));
+                let cross = mesh.face_normal_area(FaceId(f as u32));
                 let area = 0.5 * cross.norm();
                 if area <= 0.0 || !area.is_finite() {
                     continue;
@@ -103,9 +103,7 @@ pub fn auto_size(mesh: &Mesh, views: &[&PosedCamera], max_size: u32) -> AutoSize
     let surface: f64 = if stride == 1 {
         total[0]
     } else {
-        (0..nf)
-            .map(|f| mesh.face_area(crate::mesh::FaceId(f as u32)))
-            .sum()
+        (0..nf).map(|f| mesh.face_area(FaceId(f as u32))).sum()
     };
     let scale = if total[0] > 0.0 {
         surface / total[0]

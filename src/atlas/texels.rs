@@ -8,6 +8,14 @@ use nalgebra::Vector2;
 use rayon::prelude::*;
 use std::collections::HashMap;
 
+/// Texture coordinate `corner` of `uv` in texel units of an `n`-texel page: x right, y down
+/// from the page's top-left corner (UVs have v up from the lower left).
+pub(crate) fn texel_point(uv: &crate::mesh::UvMap, corner: u32, n: usize) -> Vector2<f64> {
+    let q = uv.coords[corner as usize];
+    let s = n as f64;
+    Vector2::new(q.x as f64 * s, (1.0 - q.y as f64) * s)
+}
+
 /// Rows of the atlas processed together by one thread.
 pub(crate) const BAND: usize = 16;
 
@@ -71,10 +79,7 @@ impl TexelMap {
             .into_par_iter()
             .map(|f| {
                 let c = uv.faces[f];
-                let t: [Vector2<f64>; 3] = std::array::from_fn(|k| {
-                    let q = uv.coords[c[k] as usize];
-                    Vector2::new(q.x as f64 * s, (1.0 - q.y as f64) * s)
-                });
+                let t: [Vector2<f64>; 3] = c.map(|k| texel_point(uv, k, n));
                 let cross = |u: Vector2<f64>, v: Vector2<f64>| u.x * v.y - u.y * v.x;
                 let area2 = cross(t[1] - t[0], t[2] - t[0]);
                 if area2.abs() < 1e-12 || t.iter().any(|p| !p.x.is_finite() || !p.y.is_finite()) {
@@ -169,10 +174,7 @@ pub(crate) fn border_samples(mesh: &Mesh, n: usize) -> Vec<BorderSample> {
         return Vec::new();
     };
     let s = n as f64;
-    let texel = |c: u32| {
-        let q = uv.coords[c as usize];
-        Vector2::new(q.x as f64 * s, (1.0 - q.y as f64) * s)
-    };
+    let texel = |c: u32| texel_point(uv, c, n);
     let on_page = |p: Vector2<f64>| p.x >= 0.0 && p.y >= 0.0 && p.x <= s && p.y <= s;
     let inward = |a: Vector2<f64>, b: Vector2<f64>, o: Vector2<f64>| {
         let e = (b - a).try_normalize(1e-12)?;
