@@ -35,6 +35,33 @@ pub struct ImageScore {
     pub completeness: f64,
     /// Fitted per-channel gains (1 when not fitted).
     pub gains: [f64; 3],
+    /// Scores over the pixels whose surface no input photograph saw, when the photograph
+    /// has an unseen-surface mask ([`crate::scene::Photo::unseen`]).
+    pub unseen: Option<UnseenScore>,
+}
+
+/// How a texture does where no input photograph saw the surface, against the truth (the
+/// held-out photograph), after per-channel gains fitted on the seen pixels.
+#[derive(Debug, Clone, Copy, Serialize, PartialEq)]
+pub struct UnseenScore {
+    /// Unseen pixels (inside the object's footprint).
+    pub pixels: usize,
+    /// Fraction of them the texture covers with colour (rendered, not black).
+    pub coverage: f64,
+    /// RMS of the output's detail (luma minus its Gaussian blur, sigma 1.5) over the truth's,
+    /// on the unseen pixels 2 pixels in from their border: 0 for a flat fill, 1 for detail of
+    /// the truth's strength.
+    pub detail_ratio: f64,
+    /// CIE76 colour difference of the mean colours over the unseen pixels.
+    pub delta_e: f64,
+    /// Relative Frobenius distance between the Gram matrices of eight filter responses
+    /// (luma derivatives and Laplacians at two scales, two chroma detail bands) of output and
+    /// truth over the same pixels: 0 for equal texture statistics, 1 for a flat fill.
+    pub gram_distance: f64,
+    /// Mean gradient magnitude of the luma (blurred, sigma 1.5) within 3 pixels of the
+    /// border between seen and unseen surface, output over truth: above 1 where the output
+    /// shows an edge the truth does not have.
+    pub rim_gradient_ratio: f64,
 }
 
 /// Scores of every photograph and their means.
@@ -123,7 +150,187 @@ pub fn compare(
         one_minus_ncc,
         completeness: if fp > 0 { cov as f64 / fp as f64 } else { 0.0 },
         gains,
+        unseen: None,
     }
+}
+
+/// sRGB-encoded RGB in [0, 1] to CIELAB (D65).
+fn lab(c: [f64; 3]) -> [f64; 3] {
+    let lin = c.map(|v| {
+        let v = v.clamp(0.0, 1.0);
+        if v <= 0.04045 {
+            v / 12.92
+        } else {
+            ((v + 0.055) / 1.055).powf(2.4)
+        }
+    });
+    let x = (0.4124 * lin[0] + 0.3576 * lin[1] + 0.1805 * lin[2]) / 0.95047;
+    let y = 0.2126 * lin[0] + 0.7152 * lin[1] + 0.0722 * lin[2];
+    let z = (0.0193 * lin[0] + 0.1192 * lin[1] + 0.9505 * lin[2]) / 1.08883;
+    let f = |t: f64| {
+        if t > 0.008856 {
+            t.cbrt()
+        } else {
+            7.787 * t + 16.0 / 116.0
+        }
+    };
+    let (fx, fy, fz) = (f(x), f(y), f(z));
+    [116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)]
+}
+
+/// Pixels of `m` at least `r` pixels (4-neighbour steps) inside it.
+fn erode(m: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
+    let mut cur = m.to_vec();
+    for _ in 0..r {
+        let prev = cur.clone();
+        for y in 0..h {
+            for x in 0..w {
+                let i = y * w + x;
+                if prev[i]
+                    && (x == 0
+                        || y == 0
+                        || x + 1 == w
+                        || y + 1 == h
+                        || !prev[i - 1]
+                        || !prev[i + 1]
+                        || !prev[i - w]
+                        || !prev[i + w])
+                {
+                    cur[i] = false;
+                }
+            }
+        }
+    }
+    cur
+}
+
+/// Pixels within `r` pixels (4-neighbour steps) of `m`.
+fn dilate(m: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
+    let inv: Vec<bool> = m.iter().map(|v| !v).collect();
+    erode(&inv, w, h, r).iter().map(|v| !v).collect()
+}
+
+/// The eight filter responses of [`UnseenScore::gram_distance`] at every pixel.
+fn responses(img: &Rgb32FImage) -> Vec<[f64; 8]> {
+    let (w, h) = (img.width() as usize, img.height() as usize);
+    let l: Vec<f64> = img.pixels().map(|p| luma(&p.0)).collect();
+    let rg: Vec<f64> = img.pixels().map(|p| p[0] as f64 - p[1] as f64).collect();
+    let by: Vec<f64> = img
+        .pixels()
+        .map(|p| 0.5 * (p[0] as f64 + p[1] as f64) - p[2] as f64)
+        .collect();
+    let b1 = blur(&l, w, h);
+    let b2 = blur(&b1, w, h);
+    let (rgb, byb) = (blur(&rg, w, h), blur(&by, w, h));
+    let at = |v: &[f64], x: i64, y: i64| {
+        v[y.clamp(0, h as i64 - 1) as usize * w + x.clamp(0, w as i64 - 1) as usize]
+    };
+    (0..w * h)
+        .map(|i| {
+            let (x, y) = ((i % w) as i64, (i / w) as i64);
+            let d = |v: &[f64], s: i64| {
+                (
+                    (at(v, x + s, y) - at(v, x - s, y)) / 2.0,
+                    (at(v, x, y + s) - at(v, x, y - s)) / 2.0,
+                    at(v, x + s, y) + at(v, x - s, y) + at(v, x, y + s) + at(v, x, y - s)
+                        - 4.0 * at(v, x, y),
+                )
+            };
+            let (ax, ay, al) = d(&l, 1);
+            let (bx, bb, bl) = d(&b2, 2);
+            [ax, ay, al, bx, bb, bl, rg[i] - rgb[i], by[i] - byb[i]]
+        })
+        .collect()
+}
+
+/// [`UnseenScore`] of `rendered` (gains applied) against `photo` over `unseen` (footprint
+/// pixels no input photograph saw), `seen` (the compared pixels that are not unseen) and
+/// `covered` (where the rendering holds colour).
+pub fn unseen_score(
+    rendered: &Rgb32FImage,
+    photo: &Rgb32FImage,
+    unseen: &[bool],
+    seen: &[bool],
+    covered: &[bool],
+) -> Option<UnseenScore> {
+    let (w, h) = (photo.width() as usize, photo.height() as usize);
+    let pixels = unseen.iter().filter(|&&u| u).count();
+    if pixels == 0 {
+        return None;
+    }
+    let colour = |img: &Rgb32FImage, i: usize| {
+        let p = img.get_pixel((i % w) as u32, (i / w) as u32);
+        [p[0] as f64, p[1] as f64, p[2] as f64]
+    };
+    let cov = (0..w * h)
+        .filter(|&i| unseen[i] && covered[i] && colour(rendered, i).iter().sum::<f64>() > 0.02)
+        .count();
+    let inner = erode(unseen, w, h, 2);
+    let inner_n = inner.iter().filter(|&&v| v).count().max(1);
+    let lo: Vec<f64> = rendered.pixels().map(|p| luma(&p.0)).collect();
+    let lt: Vec<f64> = photo.pixels().map(|p| luma(&p.0)).collect();
+    let (bo, bt) = (blur(&lo, w, h), blur(&lt, w, h));
+    let (mut eo, mut et) = (0.0, 0.0);
+    for i in (0..w * h).filter(|&i| inner[i]) {
+        eo += (lo[i] - bo[i]).powi(2);
+        et += (lt[i] - bt[i]).powi(2);
+    }
+    let (mut mo, mut mt) = ([0f64; 3], [0f64; 3]);
+    for i in (0..w * h).filter(|&i| unseen[i]) {
+        let (a, b) = (colour(rendered, i), colour(photo, i));
+        for k in 0..3 {
+            mo[k] += a[k] / pixels as f64;
+            mt[k] += b[k] / pixels as f64;
+        }
+    }
+    let (la, lb) = (lab(mo), lab(mt));
+    let delta_e = (0..3).map(|k| (la[k] - lb[k]).powi(2)).sum::<f64>().sqrt();
+    let gram = |img: &Rgb32FImage| {
+        let r = responses(img);
+        let mut g = [[0f64; 8]; 8];
+        for i in (0..w * h).filter(|&i| inner[i]) {
+            for a in 0..8 {
+                for b in 0..8 {
+                    g[a][b] += r[i][a] * r[i][b] / inner_n as f64;
+                }
+            }
+        }
+        g
+    };
+    let (go, gt) = (gram(rendered), gram(photo));
+    let (mut num, mut den) = (0.0, 0.0);
+    for a in 0..8 {
+        for b in 0..8 {
+            num += (go[a][b] - gt[a][b]).powi(2);
+            den += gt[a][b].powi(2);
+        }
+    }
+    // The rim: both sides of the border between seen and unseen surface.
+    let near_seen = dilate(seen, w, h, 3);
+    let near_unseen = dilate(unseen, w, h, 3);
+    let grad = |b: &[f64], i: usize| {
+        let (x, y) = (i % w, i / w);
+        if x == 0 || y == 0 || x + 1 == w || y + 1 == h {
+            return 0.0;
+        }
+        (((b[i + 1] - b[i - 1]) / 2.0).powi(2) + ((b[i + w] - b[i - w]) / 2.0).powi(2)).sqrt()
+    };
+    let (mut go_r, mut gt_r) = (0.0, 0.0);
+    for i in 0..w * h {
+        if (unseen[i] && near_seen[i]) || (seen[i] && near_unseen[i]) {
+            go_r += grad(&bo, i);
+            gt_r += grad(&bt, i);
+        }
+    }
+    let ratio = |a: f64, b: f64| if b > 0.0 { a / b } else { 0.0 };
+    Some(UnseenScore {
+        pixels,
+        coverage: cov as f64 / pixels as f64,
+        detail_ratio: ratio(eo, et).sqrt(),
+        delta_e,
+        gram_distance: ratio(num, den).sqrt(),
+        rim_gradient_ratio: ratio(go_r, gt_r),
+    })
 }
 
 /// Separable Gaussian blur (sigma 1.5, radius 5) with clamped borders.
@@ -270,7 +477,7 @@ pub fn evaluate(
             let ok = r.coverage.get_pixel(x, y)[0] > 0 && r.texture_alpha.get_pixel(x, y)[0] > 0.5;
             image::Luma([if ok { 255 } else { 0 }])
         });
-        images.push(compare(
+        let mut score = compare(
             &photo.name,
             &r.color,
             &img,
@@ -278,7 +485,36 @@ pub fn evaluate(
             &covered,
             &footprint,
             opts,
-        ));
+        );
+        // PSNR and the rest stay over every compared pixel; the pixels no input photograph
+        // saw get their own scores, with gains (when fitted) from the seen pixels only.
+        if let Some(u) = photo.load_unseen()? {
+            let seen_region = GrayImage::from_fn(w, h, |x, y| {
+                let keep = region.get_pixel(x, y)[0] > 127 && u.get_pixel(x, y)[0] <= 127;
+                image::Luma([if keep { 255 } else { 0 }])
+            });
+            let g = compare(
+                &photo.name,
+                &r.color,
+                &img,
+                &seen_region,
+                &covered,
+                &footprint,
+                opts,
+            )
+            .gains;
+            let gained = Rgb32FImage::from_fn(w, h, |x, y| {
+                let p = r.color.get_pixel(x, y);
+                image::Rgb(std::array::from_fn(|k| (p[k] as f64 * g[k]) as f32))
+            });
+            let n = (w * h) as usize;
+            let at = |img: &GrayImage, i: usize| img.as_raw()[i] > 127;
+            let unseen_px: Vec<bool> = (0..n).map(|i| at(&u, i) && at(&footprint, i)).collect();
+            let seen_px: Vec<bool> = (0..n).map(|i| at(&seen_region, i)).collect();
+            let cov_px: Vec<bool> = (0..n).map(|i| r.coverage.as_raw()[i] > 0).collect();
+            score.unseen = unseen_score(&gained, &img, &unseen_px, &seen_px, &cov_px);
+        }
+        images.push(score);
     }
     let valid: Vec<&ImageScore> = images.iter().filter(|s| s.pixels > 0).collect();
     let mean = (!valid.is_empty()).then(|| {
@@ -292,9 +528,35 @@ pub fn evaluate(
             one_minus_ncc: avg(&|s| s.one_minus_ncc),
             completeness: avg(&|s| s.completeness),
             gains: std::array::from_fn(|k| avg(&|s| s.gains[k])),
+            unseen: mean_unseen(&images),
         }
     });
     Ok(EvalReport { images, mean })
+}
+
+/// Pixel-weighted means of the unseen-region scores of images with at least 500 unseen
+/// pixels (smaller slivers are mostly border).
+fn mean_unseen(images: &[ImageScore]) -> Option<UnseenScore> {
+    let u: Vec<&UnseenScore> = images
+        .iter()
+        .filter_map(|s| s.unseen.as_ref())
+        .filter(|u| u.pixels >= 500)
+        .collect();
+    let total: usize = u.iter().map(|s| s.pixels).sum();
+    if total == 0 {
+        return None;
+    }
+    let avg = |f: &dyn Fn(&UnseenScore) -> f64| {
+        u.iter().map(|s| f(s) * s.pixels as f64).sum::<f64>() / total as f64
+    };
+    Some(UnseenScore {
+        pixels: total,
+        coverage: avg(&|s| s.coverage),
+        detail_ratio: avg(&|s| s.detail_ratio),
+        delta_e: avg(&|s| s.delta_e),
+        gram_distance: avg(&|s| s.gram_distance),
+        rim_gradient_ratio: avg(&|s| s.rim_gradient_ratio),
+    })
 }
 
 impl std::fmt::Display for EvalReport {
@@ -310,6 +572,32 @@ impl std::fmt::Display for EvalReport {
                 "{:<32} {:>9} {:>8.2} {:>7.4} {:>9.4} {:>8.4}",
                 s.name, s.pixels, s.psnr, s.ssim, s.one_minus_ncc, s.completeness
             )?;
+        }
+        let with_unseen: Vec<(&str, &UnseenScore)> = self
+            .images
+            .iter()
+            .chain(self.mean.iter())
+            .filter_map(|s| s.unseen.as_ref().map(|u| (s.name.as_str(), u)))
+            .collect();
+        if !with_unseen.is_empty() {
+            writeln!(
+                f,
+                "\nwhere no input photograph saw the surface:\n{:<32} {:>9} {:>8} {:>7} {:>7} {:>7} {:>7}",
+                "image", "pixels", "coverage", "detail", "dE", "Gram", "rim"
+            )?;
+            for (name, u) in with_unseen {
+                writeln!(
+                    f,
+                    "{:<32} {:>9} {:>8.4} {:>7.3} {:>7.2} {:>7.3} {:>7.3}",
+                    name,
+                    u.pixels,
+                    u.coverage,
+                    u.detail_ratio,
+                    u.delta_e,
+                    u.gram_distance,
+                    u.rim_gradient_ratio
+                )?;
+            }
         }
         Ok(())
     }
@@ -333,4 +621,58 @@ pub fn evaluate_scene(
     }
     scene.check_photos()?;
     evaluate(&RayMesh::new(&mesh), texture.as_ref(), &scene.photos, opts)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn textured(w: u32, h: u32) -> Rgb32FImage {
+        let mut rng = crate::rng::SplitMix64::new(5);
+        Rgb32FImage::from_fn(w, h, |_, _| {
+            let t = rng.next_f64() as f32;
+            image::Rgb([0.3 + 0.4 * t, 0.5, 0.6 - 0.3 * t])
+        })
+    }
+
+    /// The truth against itself scores perfectly; a flat fill of the right mean has no
+    /// detail and the largest Gram distance.
+    #[test]
+    fn unseen_scores_of_the_truth_and_of_a_flat_fill() {
+        let (w, h) = (64u32, 48u32);
+        let truth = textured(w, h);
+        let n = (w * h) as usize;
+        let unseen: Vec<bool> = (0..n).map(|i| i % w as usize >= 32).collect();
+        let seen: Vec<bool> = unseen.iter().map(|u| !u).collect();
+        let covered = vec![true; n];
+        let s = unseen_score(&truth, &truth, &unseen, &seen, &covered).unwrap();
+        assert_eq!(s.pixels, n / 2);
+        assert_eq!(s.coverage, 1.0);
+        assert!(
+            (s.detail_ratio - 1.0).abs() < 1e-9 && s.gram_distance < 1e-9,
+            "{s:?}"
+        );
+        assert!(s.delta_e < 1e-9 && (s.rim_gradient_ratio - 1.0).abs() < 1e-9);
+        let mean = [0.5f32, 0.5, 0.45];
+        let flat = Rgb32FImage::from_fn(w, h, |x, y| {
+            if x >= 32 {
+                image::Rgb(mean)
+            } else {
+                *truth.get_pixel(x, y)
+            }
+        });
+        let f = unseen_score(&flat, &truth, &unseen, &seen, &covered).unwrap();
+        // (The blur reaches 5 pixels across the border, so a trace of the seen half's
+        // detail remains 2 pixels in.)
+        assert!(
+            f.detail_ratio < 0.02 && (f.gram_distance - 1.0).abs() < 1e-3,
+            "{f:?}"
+        );
+        assert!(f.delta_e < 2.0, "{f:?}");
+        // Black or uncovered pixels do not count as covered.
+        let black = Rgb32FImage::new(w, h);
+        let b = unseen_score(&black, &truth, &unseen, &seen, &covered).unwrap();
+        assert_eq!(b.coverage, 0.0);
+        assert!(unseen_score(&truth, &truth, &vec![false; n], &seen, &covered).is_none());
+    }
 }

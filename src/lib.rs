@@ -14,10 +14,10 @@
 //! | 2b. gains | [`photometric::normalise`] | [`bind::Binding`] + normals -> the binding with per-photograph gain fields applied, and the [`photometric::Gains`] (exposure, white balance, shading) |
 //! | 3. resample | [`resample::resample`] | [`mesh::Mesh`] + [`atlas::Atlas`] + [`bind::Binding`] + [`photometric::Gains`] + photos -> [`resample::Resampled`] (atlas colour, texel sources, triangle classes); stage 4 calls it per photograph and chart |
 //! | 4. merge | [`merge::merge`] | mesh + [`atlas::Atlas`] + [`bind::Binding`] + [`photometric::Gains`] + photos -> [`resample::Resampled`] (photographs resampled and combined by a chart-aware multiresolution spline; texels no photograph's mask covers marked) |
-//! | 5. restore | [`restore::restore_atlas`] ([`restore::inpaint`] for any image) | [`resample::Resampled`] + [`restore::RestoreOptions`] -> the atlas with unseen texels restored (DCT split, diffusion of the low band, synthesis of the high band), [`restore::RestoreReport`] |
-//! | 6. synthesize *(planned)* | `synth::fill_surface(&Mesh, &Atlas, &Texture, ..)` | -> `Texture` (large unseen regions) |
+//! | 5. restore | [`restore::restore_atlas`] ([`restore::inpaint`] for any image) | [`resample::Resampled`] + mesh + [`atlas::Atlas`] + [`restore::RestoreOptions`] + [`restore::Handing`] -> the atlas with unseen texels restored (DCT split, diffusion of the low band, synthesis of the high band), [`restore::RestoreReport`], and what it left as [`restore::Unrestored`] (texel masks and [`restore::UnseenRegion`]s of faces) |
+//! | 6. synthesize | [`synth::synthesize`] ([`synth::plane::synthesize`] for a plain image) | [`resample::Resampled`] + mesh + normals + [`atlas::Atlas`] + [`restore::Unrestored`] + up + [`synth::SynthOptions`] -> the atlas with the handed-over regions filled (harmonic low band, exemplar detail in blended surface patches), [`synth::SynthReport`] |
 //! | eval | [`eval::evaluate`] | textured [`mesh::Mesh`] + held-out [`scene::Photo`]s -> [`eval::EvalReport`] (PSNR, SSIM, 1-NCC, completeness) |
-//! | all | [`pipeline::texture`] | stages 1-5 with one [`pipeline::TextureOptions`] -> [`pipeline::Textured`] + [`pipeline::TextureReport`] |
+//! | all | [`pipeline::texture`] | stages 1-6 with one [`pipeline::TextureOptions`] -> [`pipeline::Textured`] + [`pipeline::TextureReport`] |
 //! | out | [`io::write_mesh`] | [`mesh::Mesh`] + [`io::EncodedTexture`] -> OBJ/MTL/PNG, PLY, GLB |
 //!
 //! Conventions: COLMAP's camera conventions throughout ([`camera`]); texture coordinates with
@@ -50,5 +50,6 @@ pub mod rng;
 pub mod sample;
 pub mod scene;
 pub mod seams;
+pub mod synth;
 
 pub use error::{Error, Location, MeshElement, Result};

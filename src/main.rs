@@ -182,11 +182,25 @@ enum Command {
         /// (exact kd-tree on full neighbourhoods; slower).
         #[arg(long, default_value_t = scantex::restore::RestoreOptions::default().method)]
         restore_method: scantex::restore::Method,
-        /// Largest unseen hole restored, texels; larger regions keep their vertex colours (0 =
-        /// no limit; a region of a million texels takes minutes).
-        #[arg(long, default_value_t = scantex::pipeline::Restoration::MAX_HOLE, allow_negative_numbers = true, value_parser = number_in(0usize..=usize::MAX))]
+        /// Largest unseen atlas hole restored, texels; larger ones go to exemplar synthesis (0
+        /// = no limit; a region of a million texels takes minutes).
+        #[arg(long, default_value_t = scantex::restore::Handing::default().max_hole, allow_negative_numbers = true, value_parser = number_in(0usize..=usize::MAX))]
         max_hole: usize,
-        /// Seed of restoration's random choices (the same seed gives the same bytes).
+        /// Unseen regions at least this many feature scales deep (distance on the surface
+        /// from their rim, against the texture's own detail size) go to exemplar synthesis
+        /// instead of restoration (inf = none).
+        #[arg(long, default_value_t = scantex::restore::Handing::default().min_depth, allow_negative_numbers = true, value_parser = number_in(0.0f64..=f64::INFINITY))]
+        min_depth: f64,
+        /// Exemplar synthesis of the regions restoration leaves (stage 6): auto (per region,
+        /// the crop of photographed texture most like its rim), off (they keep their vertex
+        /// colours), or an image file (one pixel per atlas texel, its top towards up).
+        #[arg(long, default_value_t = scantex::synth::SynthOptions::default().exemplar)]
+        exemplar: scantex::synth::ExemplarSource,
+        /// Stage 6 patch radius, exemplar texels (0 = eight feature scales, 16 to 48).
+        #[arg(long, default_value_t = scantex::synth::SynthOptions::default().radius, allow_negative_numbers = true, value_parser = number_in(scantex::synth::RADIUS_RANGE))]
+        synth_radius: f64,
+        /// Seed of restoration's and synthesis's random choices (the same seed gives the
+        /// same bytes).
         #[arg(long, default_value_t = scantex::restore::RestoreOptions::default().seed, allow_negative_numbers = true, value_parser = number_in(0u64..=u64::MAX))]
         seed: u64,
         /// Longest side of the per-photograph depth map, pixels.
@@ -256,6 +270,28 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Synthesise an image of any size from an exemplar (stage 6's 2D core): overlapping
+    /// patches at random offsets, each chosen to agree with its neighbours, blended so the
+    /// exemplar's colour histogram is kept.
+    Synth {
+        /// Exemplar image (PNG 8/16-bit, JPEG, EXR; grey or RGB, alpha is dropped).
+        exemplar: PathBuf,
+        /// Output image (.png, .jpg or .exr; PNG keeps a 16-bit input's depth).
+        #[arg(short, long)]
+        out: PathBuf,
+        /// Output size, WIDTHxHEIGHT pixels.
+        #[arg(long, value_parser = parse_size)]
+        size: (usize, usize),
+        /// Patch radius, pixels (capped so a patch fits in the exemplar).
+        #[arg(long, default_value_t = scantex::synth::plane::PlaneOptions::default().radius, allow_negative_numbers = true, value_parser = number_in(2.0f64..=512.0))]
+        radius: f64,
+        /// Exemplar offsets tried per patch (1 = purely random).
+        #[arg(long, default_value_t = scantex::synth::plane::PlaneOptions::default().candidates, allow_negative_numbers = true, value_parser = number_in(1usize..=4096))]
+        candidates: usize,
+        /// Random seed (the same seed gives the same bytes).
+        #[arg(long, default_value_t = scantex::synth::plane::PlaneOptions::default().seed, allow_negative_numbers = true, value_parser = number_in(0u64..=u64::MAX))]
+        seed: u64,
+    },
     /// Give a mesh texture coordinates: charts, stretch minimisation, packing (stage 1).
     Param {
         /// Input mesh (.obj, .ply, .gltf, .glb); existing UVs are ignored.
@@ -317,6 +353,14 @@ enum Command {
         /// Light every photograph from the same direction (default: a random one each).
         #[arg(long)]
         fixed_light: bool,
+        /// Leave this sector of azimuth, degrees, unphotographed (a side no input sees);
+        /// held-out views still go all around and heldout/unseen/ marks their pixels whose
+        /// surface no input saw (for `eval`'s unseen-region scores).
+        #[arg(long, default_value_t = scantex::sample::SampleOptions::default().unseen_sector, allow_negative_numbers = true, value_parser = number_in(scantex::sample::SECTOR_RANGE))]
+        unseen_sector: f64,
+        /// Held-out photographs.
+        #[arg(long, default_value_t = scantex::sample::SampleOptions::default().heldout, allow_negative_numbers = true, value_parser = number_in(0usize..=100_000))]
+        heldout: usize,
     },
 }
 
@@ -400,6 +444,21 @@ impl std::fmt::Display for Axis {
             Axis::Z => "z",
         })
     }
+}
+
+/// WIDTHxHEIGHT, each from 1 to the largest side `scantex synth` writes.
+fn parse_size(s: &str) -> Result<(usize, usize), String> {
+    let max = scantex::synth::plane::MAX_SIDE;
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("'{s}' is not WIDTHxHEIGHT (for example 512x512)"))?;
+    let side = |v: &str| match v.trim().parse::<usize>() {
+        Ok(n) if (1..=max).contains(&n) => Ok(n),
+        _ => Err(format!(
+            "'{v}' in '{s}' is not a side from 1 to {max} pixels"
+        )),
+    };
+    Ok((side(w)?, side(h)?))
 }
 
 fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
@@ -589,6 +648,9 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             no_restore,
             restore_method,
             max_hole,
+            min_depth,
+            exemplar,
+            synth_radius,
             seed,
             depth_resolution,
             max_views,
@@ -632,8 +694,17 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
                         seed,
                         ..Default::default()
                     },
-                    max_hole,
+                    handing: scantex::restore::Handing {
+                        max_hole,
+                        min_depth,
+                    },
                 }
+            };
+            opts.synth = scantex::synth::SynthOptions {
+                exemplar,
+                radius: synth_radius,
+                seed,
+                ..Default::default()
             };
             opts.bind.background = background;
             opts.bind.background_threshold = background_threshold;
@@ -711,13 +782,17 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             seed,
             gain_range,
             fixed_light,
+            unseen_sector,
+            heldout,
         } => {
             let opts = scantex::sample::SampleOptions {
                 up: up.vector(),
                 photos,
+                heldout,
                 seed,
                 gain_range,
                 vary_light: !fixed_light,
+                unseen_sector,
                 ..Default::default()
             };
             let report = scantex::sample::generate_to(from_mesh.as_deref(), &opts, &out)?;
@@ -791,6 +866,38 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
                     out.display()
                 );
             }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Synth {
+            exemplar,
+            out,
+            size,
+            radius,
+            candidates,
+            seed,
+        } => {
+            let opts = scantex::synth::plane::PlaneOptions {
+                radius,
+                candidates,
+                seed,
+            };
+            let label = scantex::io::staging::label_of(&out);
+            scantex::io::image::planar_output_format(&out)?;
+            let staged = scantex::io::Staged::begin(&label, &[scantex::io::staging::dir_of(&out)])?;
+            let (img, depth) = scantex::io::image::read_planar(&exemplar)?;
+            let t = std::time::Instant::now();
+            let made = scantex::synth::plane::synthesize_image(&img, size.0, size.1, &opts)?;
+            let secs = t.elapsed().as_secs_f64();
+            scantex::io::image::stage_planar(staged, &out, &made, depth)?;
+            eprintln!(
+                "synthesised {}x{} from a {}x{} exemplar in {:.2} s; wrote {}",
+                size.0,
+                size.1,
+                img.width,
+                img.height,
+                secs,
+                out.display()
+            );
             Ok(ExitCode::SUCCESS)
         }
         Command::Info { scene, json } => {

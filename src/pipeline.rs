@@ -17,6 +17,7 @@ use crate::resample::{ResampleOptions, ResampleStats, Resampled};
 use crate::restore::{self, RestoreOptions};
 use crate::scene::Photo;
 use crate::seams::{seam_visibility, SeamReport};
+use crate::synth::{self, ExemplarSource, SynthOptions};
 use image::{DynamicImage, Rgb32FImage};
 use nalgebra::Vector3;
 use serde::Serialize;
@@ -123,32 +124,28 @@ pub enum Restoration {
     /// Leave the merge stage's vertex-colour interpolation in the unseen texels.
     Off,
     /// Diffusion of the low band plus synthesis of the high band from the chart's observed
-    /// texels (§5), for holes of at most `max_hole` texels (larger unseen regions keep their
-    /// vertex colours; 0 = no limit).
+    /// texels (§5), except the regions it hands to exemplar synthesis (stage 6): those deeper
+    /// than `handing.min_depth` feature scales and atlas holes larger than `handing.max_hole`
+    /// texels.
     Synthesis {
         /// The restoration itself.
         options: RestoreOptions,
-        /// Largest hole restored, texels. Default: [`Restoration::MAX_HOLE`].
-        max_hole: usize,
+        /// Which regions it leaves to stage 6. Default: [`restore::Handing::default`].
+        handing: restore::Handing,
     },
-}
-
-impl Restoration {
-    /// The default largest hole restored: 16384 texels (a 128 x 128 region).
-    pub const MAX_HOLE: usize = 16384;
 }
 
 impl Default for Restoration {
     fn default() -> Self {
         Restoration::Synthesis {
             options: RestoreOptions::default(),
-            max_hole: Restoration::MAX_HOLE,
+            handing: restore::Handing::default(),
         }
     }
 }
 
 /// Everything `scantex texture` can be told.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct TextureOptions {
     /// Atlas (gutter, stretch). Default: [`AtlasOptions::default`] (gutter 4); its
     /// `pack.size` is set from `size` when texturing.
@@ -170,8 +167,12 @@ pub struct TextureOptions {
     /// masks); [`TextureOptions::paper`] uses the paper's masks.
     pub merge: MergeOptions,
     /// What fills the texels no photograph saw. Default:
-    /// [`Restoration::Synthesis`] with [`RestoreOptions::default`], holes up to 16384 texels.
+    /// [`Restoration::Synthesis`] with [`RestoreOptions::default`] and
+    /// [`restore::Handing::default`].
     pub restoration: Restoration,
+    /// Exemplar synthesis (stage 6) of the regions restoration hands over; runs only when
+    /// restoration does. Default: [`SynthOptions::default`] (exemplars from the atlas).
+    pub synth: SynthOptions,
     /// Atlas file format. Default: PNG.
     pub format: TextureFormat,
     /// Keep the UVs the mesh arrived with (unwrapped by another tool) instead of making an
@@ -191,6 +192,7 @@ impl Default for TextureOptions {
             resample: ResampleOptions::default(),
             merge: MergeOptions::default(),
             restoration: Restoration::default(),
+            synth: SynthOptions::default(),
             format: TextureFormat::default(),
             keep_uvs: false,
         }
@@ -222,6 +224,7 @@ impl TextureOptions {
         self.bind.validate()?;
         self.photometric.validate()?;
         self.merge.validate()?;
+        self.synth.validate()?;
         let fixed = match self.size {
             AtlasSize::Fixed(n) => Some(("size", n)),
             AtlasSize::Auto => None,
@@ -303,6 +306,8 @@ pub struct TextureReport {
     pub seams: SeamReport,
     /// Restoration of the texels no photograph saw (stage 5), if it ran.
     pub restore: Option<restore::RestoreReport>,
+    /// Exemplar synthesis of the regions restoration handed over (stage 6), if it ran.
+    pub synth: Option<synth::SynthReport>,
     /// Of the texels of green triangles (all three vertices seen by one photograph), the
     /// fraction coloured from photographs; the rest are hidden from every photograph at texel
     /// precision (robust) and take vertex colours.
@@ -335,6 +340,35 @@ fn stage_since(name: &'static str, t: &mut Instant) -> StageReport {
     };
     *t = Instant::now();
     r
+}
+
+/// The scene's "up" as the photographs suggest it: photographers hold cameras level, so up
+/// is the direction most nearly perpendicular to every camera's image-horizontal axis (the
+/// least eigenvector of the sum of their outer products), signed to agree with the cameras'
+/// image-up directions. A mean of image-up vectors alone would tilt towards the side the
+/// cameras stand on. Falls back to +Z without photographs.
+pub fn mean_up(photos: &[Photo]) -> Vector3<f64> {
+    let mut s = nalgebra::Matrix3::<f64>::zeros();
+    let mut ups = Vector3::zeros();
+    for p in photos {
+        let inv = p.view.pose.rotation.inverse();
+        let x = inv * Vector3::x();
+        s += x * x.transpose();
+        ups += inv * -Vector3::y();
+    }
+    if photos.is_empty() {
+        return Vector3::z();
+    }
+    let eig = nalgebra::SymmetricEigen::new(s);
+    let k = (0..3)
+        .min_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]))
+        .unwrap_or(2);
+    let up = eig.eigenvectors.column(k).into_owned().normalize();
+    if up.dot(&ups) < 0.0 {
+        -up
+    } else {
+        up
+    }
 }
 
 /// Mean viewing direction of the photographs, if they agree enough to have one.
@@ -454,12 +488,14 @@ pub fn texture(
     stages.push(stage_since("resample+merge", &mut t));
     let (restore, unrestored) = match opts.restoration {
         Restoration::Off => (None, None),
-        Restoration::Synthesis { options, max_hole } => {
+        Restoration::Synthesis { options, handing } => {
             progress.start("restore", 1);
             let (r, left) = restore::restore_atlas(
                 &mut resampled,
+                &m,
+                &atlas,
                 &options,
-                max_hole,
+                &handing,
                 opts.resample.gutter_fill,
             )?;
             // Restored texels meet at chart borders without having seen each other.
@@ -471,6 +507,30 @@ pub fn texture(
             stages.push(stage_since("restore", &mut t));
             (Some(r), Some(left))
         }
+    };
+    let synth = match (&unrestored, &opts.synth.exemplar) {
+        (Some(left), e) if *e != ExemplarSource::Off && !left.regions.is_empty() => {
+            progress.start("synth", 1);
+            let user = match e {
+                ExemplarSource::File(p) => Some(io::image::read_rgb32f(p)?),
+                _ => None,
+            };
+            let r = synth::synthesize(
+                &m,
+                &normals,
+                &atlas,
+                &mut resampled,
+                left,
+                mean_up(photos),
+                user.as_ref(),
+                &opts.synth,
+                opts.resample.gutter_fill,
+            )?;
+            progress.finish();
+            stages.push(stage_since("synth", &mut t));
+            Some(r)
+        }
+        _ => None,
     };
     let seams = seam_visibility(
         &m,
@@ -504,6 +564,7 @@ pub fn texture(
         merging,
         seams,
         restore,
+        synth,
         completeness_seen: if seen > 0 {
             s.texels_photos as f64 / seen as f64
         } else {

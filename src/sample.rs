@@ -41,9 +41,16 @@ pub struct SampleOptions {
     pub vary_light: bool,
     /// JPEG quality of the photographs. Default: 97.
     pub jpeg_quality: u8,
+    /// A sector of azimuth, degrees, that no input photograph looks from (centred on the
+    /// first horizontal axis); held-out views still go all around, and `heldout/unseen/`
+    /// marks the pixels of each whose surface no input photograph saw. Default: 0.
+    pub unseen_sector: f64,
     /// Random seed: same seed, same bytes. Default: 1.
     pub seed: u64,
 }
+
+/// Sectors [`SampleOptions::unseen_sector`] may take, degrees.
+pub const SECTOR_RANGE: std::ops::RangeInclusive<f64> = 0.0..=300.0;
 
 /// Exposure and white-balance deviations [`SampleOptions::gain_range`] may take.
 pub const GAIN_RANGE_LIMITS: std::ops::RangeInclusive<f64> = 0.0..=0.9;
@@ -60,6 +67,7 @@ impl Default for SampleOptions {
             gain_range: 0.25,
             vary_light: true,
             jpeg_quality: 97,
+            unseen_sector: 0.0,
             seed: 1,
         }
     }
@@ -211,6 +219,15 @@ pub fn generate(
             format!("gain range {} must lie in [0, 0.9]", opts.gain_range),
         ));
     }
+    if !SECTOR_RANGE.contains(&opts.unseen_sector) {
+        return Err(Error::option(
+            "unseen_sector",
+            format!(
+                "{} degrees: expected a sector from 0 to 300",
+                opts.unseen_sector
+            ),
+        ));
+    }
     if truth.uv.is_none() {
         return Err(Error::mesh(
             crate::MeshElement::Whole,
@@ -265,8 +282,24 @@ pub fn generate(
         } else {
             (opts.photos, k, 0.0)
         };
-        let az =
-            std::f64::consts::TAU * (idx as f64 + offset + rng.range(-0.2, 0.2)) / count as f64;
+        // Input photographs spread over the azimuths outside the unseen sector.
+        let span = if heldout {
+            std::f64::consts::TAU
+        } else {
+            std::f64::consts::TAU - opts.unseen_sector.to_radians()
+        };
+        let start = if heldout {
+            0.0
+        } else {
+            opts.unseen_sector.to_radians() / 2.0
+        };
+        let az = start
+            + span
+                * (idx as f64
+                    + offset
+                    + 0.5 * f64::from(!heldout && opts.unseen_sector > 0.0)
+                    + rng.range(-0.2, 0.2))
+                / count as f64;
         let el = rng
             .range(opts.min_elevation, opts.max_elevation)
             .to_radians();
@@ -439,7 +472,18 @@ pub fn generate(
         r.coverage
             .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
             .map_err(|e| Error::Internal(format!("PNG encoding in memory: {e}")))?;
-        io::write_atomic(&root.join("masks").join(mask_name), &png)?;
+        io::write_atomic(&root.join("masks").join(&mask_name), &png)?;
+        if *heldout && opts.unseen_sector > 0.0 {
+            let inputs: Vec<&PosedCamera> = views.iter().filter(|v| !v.3).map(|v| &v.1).collect();
+            let unseen = unseen_mask(&ray_mesh, truth, view, &inputs, radius);
+            let mut png = Vec::new();
+            unseen
+                .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+                .map_err(|e| Error::Internal(format!("PNG encoding in memory: {e}")))?;
+            let dir = root.join("unseen");
+            std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+            io::write_atomic(&dir.join(&mask_name), &png)?;
+        }
         lighting.insert(name.clone(), *light);
     }
     // The bare input mesh (no UVs, no texture) and the truth.
@@ -464,6 +508,61 @@ pub fn generate(
         lighting,
         bytes: dir_size(out),
     })
+}
+
+/// 255 where `view` sees a surface point that no camera of `inputs` sees (in its image,
+/// facing it, not occluded), 0 elsewhere (background included).
+fn unseen_mask(
+    mesh: &RayMesh,
+    truth: &Mesh,
+    view: &PosedCamera,
+    inputs: &[&PosedCamera],
+    radius: f64,
+) -> image::GrayImage {
+    use rayon::prelude::*;
+    let (w, h) = (view.camera.width, view.camera.height);
+    let centres: Vec<Point3<f64>> = inputs.iter().map(|c| c.pose.center()).collect();
+    let rows: Vec<Vec<u8>> = (0..h)
+        .into_par_iter()
+        .map(|y| {
+            (0..w)
+                .map(|x| {
+                    let px = nalgebra::Point2::new(x as f64 + 0.5, y as f64 + 0.5);
+                    let o = view.pose.center();
+                    let Some(d) = view.world_ray(&px) else {
+                        return 0;
+                    };
+                    let Some(hit) = mesh.intersect(&o, &d) else {
+                        return 0;
+                    };
+                    let p = o + d * hit.t;
+                    let n = truth.face_normal_area(hit.face).normalize();
+                    let seen = inputs.iter().zip(&centres).any(|(cam, c)| {
+                        let to = c - p;
+                        if to.dot(&n) <= 0.0 {
+                            return false;
+                        }
+                        let Some(q) = cam.project(&p) else {
+                            return false;
+                        };
+                        if !cam.camera.contains(&q) {
+                            return false;
+                        }
+                        let dist = to.norm();
+                        let back = -to / dist;
+                        mesh.intersect(c, &back)
+                            .is_some_and(|h2| h2.t >= dist - 1e-4 * radius)
+                    });
+                    if seen {
+                        0
+                    } else {
+                        255
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    image::GrayImage::from_raw(w, h, rows.concat()).expect("w * h values")
 }
 
 fn dir_size(p: &Path) -> u64 {

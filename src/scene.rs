@@ -151,6 +151,10 @@ pub struct Photo {
     pub path: PathBuf,
     /// Full path of its mask, if the scene has one for it.
     pub mask: Option<PathBuf>,
+    /// Full path of its unseen-surface mask (white = surface no input photograph saw), if
+    /// the scene has one: `unseen/<stem>.png` beside the images directory, as `scantex
+    /// sample --unseen-sector` writes for held-out views.
+    pub unseen: Option<PathBuf>,
     /// Camera and pose.
     pub view: PosedCamera,
 }
@@ -259,15 +263,24 @@ impl Photo {
 
     /// Decodes the mask (white = object) if there is one, checking its size.
     pub fn load_mask(&self) -> Result<Option<GrayImage>> {
-        let Some(p) = &self.mask else { return Ok(None) };
+        self.load_gray(self.mask.as_deref(), "mask")
+    }
+
+    /// Decodes the unseen-surface mask if there is one, checking its size.
+    pub fn load_unseen(&self) -> Result<Option<GrayImage>> {
+        self.load_gray(self.unseen.as_deref(), "unseen mask")
+    }
+
+    fn load_gray(&self, p: Option<&Path>, what: &str) -> Result<Option<GrayImage>> {
+        let Some(p) = p else { return Ok(None) };
         let m = io::image::read(p)?.into_luma8();
         let expected = (self.view.camera.width, self.view.camera.height);
         if m.dimensions() != expected {
             return Err(Error::at_element(
                 p,
-                format!("mask of image {}", self.image_id),
+                format!("{what} of image {}", self.image_id),
                 format!(
-                    "mask is {}x{} but its camera is {}x{}",
+                    "{what} is {}x{} but its camera is {}x{}",
                     m.width(),
                     m.height(),
                     expected.0,
@@ -378,11 +391,18 @@ fn photos_of(rec: &Reconstruction, paths: &ScenePaths) -> Vec<Photo> {
                 .into_iter()
                 .find(|p| p.is_file())
             });
+            let unseen = images_dir.parent().and_then(|d| {
+                let p = d
+                    .join("unseen")
+                    .join(Path::new(&img.name).with_extension("png"));
+                p.is_file().then_some(p)
+            });
             Photo {
                 image_id: img.id,
                 name: img.name.clone(),
                 path: images_dir.join(&img.name),
                 mask,
+                unseen,
                 view: PosedCamera {
                     camera: rec.cameras[&img.camera_id].clone(),
                     pose: img.pose,

@@ -1280,7 +1280,7 @@ fn help_shows_the_library_defaults_and_exit_codes() {
         ("--max-views", r.max_views.to_string()),
         (
             "--max-hole",
-            scantex::pipeline::Restoration::MAX_HOLE.to_string(),
+            scantex::restore::Handing::default().max_hole.to_string(),
         ),
     ] {
         let at = help

@@ -160,15 +160,7 @@ fn torus() -> Scene {
 
 /// Textures `scene` into `out`; returns the report.
 fn texture_to(scene: &Path, opts: &TextureOptions, out: &Path) -> scantex::pipeline::TextureReport {
-    let s = Scene::load(&SceneSpec {
-        dir: Some(scene.into()),
-        ..Default::default()
-    })
-    .unwrap();
-    let (mesh, _) = s.mesh.as_ref().unwrap();
-    let r = texture(mesh, &s.photos, opts, &Silent).unwrap();
-    write_outputs(out, &r, TextureFormat::Png, None).unwrap();
-    r.report
+    common::texture_into(scene, opts, out).report
 }
 
 /// The textured mesh in `out` against `scene`'s held-out views (gain-fitted), mean over

@@ -266,6 +266,22 @@ impl Atlas {
         (f != texels::NO_FACE).then_some(f)
     }
 
+    /// Barycentric coordinates of texel (x, y)'s centre in face `f`'s triangle (unclamped),
+    /// if `f` lies on the page.
+    pub fn barycentric(&self, f: usize, x: usize, y: usize) -> Option<[f64; 3]> {
+        self.texels.faces[f].as_ref().map(|r| r.bary(x, y))
+    }
+
+    /// Length on the surface of one texel of face `f`, scene units, if `f` lies on the page.
+    pub fn texel_length(&self, f: usize) -> Option<f64> {
+        self.texels.faces[f].as_ref().map(|r| r.texel_len)
+    }
+
+    /// Corners of face `f` in texel coordinates (x right, y down), if `f` lies on the page.
+    pub fn face_texels(&self, f: usize) -> Option<[nalgebra::Vector2<f64>; 3]> {
+        self.texels.faces[f].as_ref().map(|r| r.t)
+    }
+
     /// Texel rows and columns (inclusive) face `f` may own, if it lies on the page.
     pub fn face_rect(&self, f: usize) -> Option<((usize, usize), (usize, usize))> {
         self.texels.faces[f].as_ref().map(|r| (r.rows, r.cols))

@@ -20,6 +20,35 @@ pub fn one_rings(mesh: &Mesh) -> Vec<Vec<u32>> {
     nbr
 }
 
+/// No neighbour across this edge (a boundary, or a third face on a non-manifold edge).
+pub const NO_FACE: u32 = u32::MAX;
+
+/// Each face's neighbours across its three edges (edge k joins corners k and k + 1), or
+/// [`NO_FACE`]. On a non-manifold edge the faces pair up in index order.
+pub fn face_adjacency(mesh: &Mesh) -> Vec<[u32; 3]> {
+    let mut edges: Vec<(u32, u32, u32, u8)> = Vec::with_capacity(mesh.faces.len() * 3);
+    for (f, fv) in mesh.faces.iter().enumerate() {
+        for k in 0..3 {
+            let (a, b) = (fv[k].0, fv[(k + 1) % 3].0);
+            edges.push((a.min(b), a.max(b), f as u32, k as u8));
+        }
+    }
+    edges.sort_unstable();
+    let mut adj = vec![[NO_FACE; 3]; mesh.faces.len()];
+    let mut i = 0;
+    while i + 1 < edges.len() {
+        let (e, n) = (edges[i], edges[i + 1]);
+        if (e.0, e.1) == (n.0, n.1) {
+            adj[e.2 as usize][e.3 as usize] = n.2;
+            adj[n.2 as usize][n.3 as usize] = e.2;
+            i += 2;
+        } else {
+            i += 1;
+        }
+    }
+    adj
+}
+
 /// Disjoint sets with path halving and union by size.
 pub struct UnionFind {
     parent: Vec<u32>,
@@ -76,6 +105,12 @@ mod tests {
         assert_eq!(
             one_rings(&m),
             vec![vec![1, 2], vec![0, 2, 3], vec![0, 1, 3], vec![1, 2]]
+        );
+        // The two faces meet across edge 1-2: edge 1 (corners 1, 2) of face 0, edge 0 of
+        // face 1; every other edge is a boundary.
+        assert_eq!(
+            face_adjacency(&m),
+            vec![[NO_FACE, 1, NO_FACE], [0, NO_FACE, NO_FACE]]
         );
         let mut u = UnionFind::new(4);
         u.union(0, 3);

@@ -2,6 +2,7 @@
 //! holes of at most `max_hole`), restored in independent crops in parallel, faded into the
 //! vertex colours at chart borders; what is left goes on as [`Unrestored`].
 
+use super::regions::{self, UnseenRegion};
 use super::*;
 use crate::planar::BitMask;
 
@@ -15,12 +16,19 @@ pub struct Unrestored {
     pub too_large: BitMask,
     /// Unseen texels of charts no photograph saw at all: nothing in 2D to restore them from.
     pub unreachable: BitMask,
+    /// Unseen texels of regions deeper than the depth limit, left for stage 6 before
+    /// restoration ran.
+    pub deep: BitMask,
+    /// The texture's feature scale, texels ([`regions::feature_scale`]).
+    pub feature_scale: f64,
+    /// Every region handed to stage 6: deep, too large or unreachable, as faces.
+    pub regions: Vec<UnseenRegion>,
 }
 
 /// What stage 5 did to each texel: grey where photographs coloured it, green where it was
-/// restored, magenta where it was left for being part of a region larger than `max_hole`,
-/// orange where its chart had no seen texel (or restoration did not run: `left` is `None`),
-/// black outside the charts.
+/// restored, blue where it was left for lying deeper than the depth limit, magenta where it
+/// was left for being part of a region larger than `max_hole`, orange where its chart had no
+/// seen texel (or restoration did not run: `left` is `None`), black outside the charts.
 pub fn picture(res: &crate::resample::Resampled, left: Option<&Unrestored>) -> image::RgbImage {
     use crate::resample::TexelSource as S;
     let (w, h) = res.color.dimensions();
@@ -31,6 +39,7 @@ pub fn picture(res: &crate::resample::Resampled, left: Option<&Unrestored>) -> i
             [110, 110, 110]
         } else if s == S::GreenFallback as u8 || s == S::Blue as u8 || s == S::Red as u8 {
             match left {
+                Some(l) if l.deep.get(i) => [60, 120, 230],
                 Some(l) if l.too_large.get(i) => [220, 40, 200],
                 Some(l) if !l.unreachable.get(i) => [40, 200, 60],
                 _ => [240, 140, 20],
@@ -41,24 +50,72 @@ pub fn picture(res: &crate::resample::Resampled, left: Option<&Unrestored>) -> i
     })
 }
 
+/// Which unseen regions restoration leaves to exemplar synthesis (stage 6).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Handing {
+    /// Largest atlas hole restored, texels (0 = no limit). Default: 16384 (a 128 x 128
+    /// region).
+    pub max_hole: usize,
+    /// Regions of faces no photograph saw whose depth from their rim on the surface is at
+    /// least this many feature scales go to stage 6 before restoration (infinite = none).
+    /// Default: 12.
+    pub min_depth: f64,
+}
+
+impl Default for Handing {
+    fn default() -> Self {
+        Handing {
+            max_hole: 16384,
+            min_depth: 12.0,
+        }
+    }
+}
+
 /// Stage 5 on the atlas: fills the texels the merge marked as seen by no photograph (green
 /// fallback, blue and red triangles), reading chart texels only, then extends the charts into
-/// the gutter again so that filtering never pulls in the old fill. Returns what it did and the
-/// unseen texels it left.
+/// the gutter again so that filtering never pulls in the old fill. Regions beyond restoration
+/// (`handing`) are left untouched and handed on. Returns what it did and the unseen texels it
+/// left, with their regions.
 pub fn restore_atlas(
     res: &mut crate::resample::Resampled,
+    mesh: &crate::mesh::Mesh,
+    atlas: &crate::atlas::Atlas,
     opts: &RestoreOptions,
-    max_hole: usize,
+    handing: &Handing,
     gutter_fill: u32,
 ) -> Result<(RestoreReport, Unrestored)> {
     use crate::resample::TexelSource as S;
+    let max_hole = handing.max_hole;
     let n = res.color.width() as usize;
     let unseen = |s: u8| s == S::GreenFallback as u8 || s == S::Blue as u8 || s == S::Red as u8;
-    let domain: Vec<bool> = res
+    let mut domain: Vec<bool> = res
         .source
         .iter()
         .map(|&s| s == S::Photos as u8 || unseen(s))
         .collect();
+    let any_unseen = res.source.iter().any(|&s| unseen(s));
+    let feature_scale = regions::feature_scale(&res.color, &res.source);
+    // Deep regions first: they leave the domain, so no hole reads their vertex colours.
+    let mut deep_mask = BitMask::new(n * n);
+    let (deep, adj) = if any_unseen && handing.min_depth.is_finite() {
+        let (deep, adj) =
+            regions::deep_regions(mesh, atlas, &res.source, feature_scale, handing.min_depth);
+        let mut is_deep = vec![false; mesh.num_faces()];
+        for r in &deep {
+            for &f in &r.faces {
+                is_deep[f as usize] = true;
+            }
+        }
+        for (i, d) in domain.iter_mut().enumerate() {
+            if unseen(res.source[i]) && atlas.owner(i).is_some_and(|f| is_deep[f as usize]) {
+                deep_mask.set(i);
+                *d = false;
+            }
+        }
+        (deep, Some(adj))
+    } else {
+        (Vec::new(), None)
+    };
     // Charts no photograph saw at all have nothing to restore from in 2D: their vertex colours
     // (continuous across seams, from the 3D neighbourhood) stay. Charts are separate domain
     // components (gutter lies between them), so "reachable from a seen texel" is "in a chart
@@ -68,14 +125,17 @@ pub fn restore_atlas(
         grid_distance(n, n, &domain, &seen, None)
     };
     let mut mask: Vec<bool> = (0..n * n)
-        .map(|i| unseen(res.source[i]) && reach[i] != u8::MAX)
+        .map(|i| domain[i] && unseen(res.source[i]) && reach[i] != u8::MAX)
         .collect();
     let mut left = Unrestored {
         size: n,
         too_large: BitMask::new(n * n),
         unreachable: BitMask::new(n * n),
+        deep: deep_mask,
+        feature_scale,
+        regions: Vec::new(),
     };
-    for i in (0..n * n).filter(|&i| unseen(res.source[i]) && reach[i] == u8::MAX) {
+    for i in (0..n * n).filter(|&i| domain[i] && unseen(res.source[i]) && reach[i] == u8::MAX) {
         left.unreachable.set(i);
     }
     let texels_left_unreachable = left.unreachable.count() as u64;
@@ -211,6 +271,20 @@ pub fn restore_atlas(
     report.seconds = wall.elapsed().as_secs_f64();
     report.texels_left_large = left_large;
     report.texels_left_unreachable = texels_left_unreachable;
+    report.texels_left_deep = left.deep.count() as u64;
+    report.feature_scale = feature_scale;
+    if left.deep.count() + left.too_large.count() + left.unreachable.count() > 0 {
+        let adj = adj.unwrap_or_else(|| crate::mesh::topology::face_adjacency(mesh));
+        left.regions = regions::handed_over(
+            mesh,
+            atlas,
+            &adj,
+            &res.source,
+            &deep,
+            &left.too_large,
+            &left.unreachable,
+        );
+    }
     res.color = image::Rgb32FImage::from_raw(n as u32, n as u32, data).expect("n * n * 3 values");
     crate::resample::refill_gutter(res, gutter_fill);
     Ok((report, left))

@@ -7,9 +7,11 @@
 mod atlas;
 mod dct;
 mod diffuse;
+mod regions;
 mod synth;
 
-pub use atlas::{picture, restore_atlas, Unrestored};
+pub use atlas::{picture, restore_atlas, Handing, Unrestored};
+pub use regions::{feature_scale, texels_per_unit, Handover, UnseenRegion};
 pub use synth::LevelStats;
 
 use crate::error::{Error, Result};
@@ -215,6 +217,10 @@ pub struct RestoreReport {
     pub texels_left_large: u64,
     /// Atlas: unseen texels in charts with no seen texel, left with vertex colours.
     pub texels_left_unreachable: u64,
+    /// Atlas: unseen texels of regions deeper than the depth limit, left for stage 6.
+    pub texels_left_deep: u64,
+    /// Atlas: the texture's feature scale, texels (0 for a plain image).
+    pub feature_scale: f64,
     /// Subbands in the low band (atlas: the median over crops).
     pub kappa: usize,
     /// Atlas: crops restored separately (groups of nearby holes); 0 for a plain image.

@@ -58,3 +58,20 @@ pub fn copy_dir(src: &Path, dst: &Path) {
         }
     }
 }
+
+/// Textures the scene directory `scene` with `opts` and writes the outputs (PNG) into `out`.
+pub fn texture_into(
+    scene: &Path,
+    opts: &scantex::pipeline::TextureOptions,
+    out: &Path,
+) -> scantex::pipeline::Textured {
+    let s = scantex::scene::Scene::load(&scantex::scene::SceneSpec {
+        dir: Some(scene.into()),
+        ..Default::default()
+    })
+    .unwrap();
+    let (mesh, _) = s.mesh.as_ref().unwrap();
+    let r = scantex::pipeline::texture(mesh, &s.photos, opts, &scantex::progress::Silent).unwrap();
+    scantex::pipeline::write_outputs(out, &r, scantex::pipeline::TextureFormat::Png, None).unwrap();
+    r
+}

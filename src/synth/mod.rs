@@ -1,0 +1,447 @@
+//! Stage 6: exemplar patch synthesis on the surface for the regions no photograph saw and
+//! restoration left (`restore::Unrestored::regions`). Each region gets a smooth low band that
+//! continues the colours at its rim and detail from an exemplar (a crop of what the
+//! photographs saw, chosen by orientation, colour and place, or the user's image), pasted in
+//! overlapping surface patches and blended so that the exemplar's histogram is kept
+//! (`surface`, `plane`). The 2D core also runs on its own ([`plane::synthesize`],
+//! `scantex synth`).
+
+mod pick;
+pub mod plane;
+mod surface;
+
+use crate::atlas::Atlas;
+use crate::error::{Error, Result};
+use crate::mesh::{FaceId, Mesh};
+use crate::resample::Resampled;
+use crate::restore::{Handover, Unrestored};
+use crate::rng::SplitMix64;
+use nalgebra::{Matrix2, Vector3};
+use serde::Serialize;
+use std::path::PathBuf;
+use std::time::Instant;
+use surface::{Layout, Source};
+
+/// Where stage 6 takes its exemplars from.
+#[derive(Debug, Clone, PartialEq, Default, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ExemplarSource {
+    /// No stage 6: the regions restoration left keep their vertex colours.
+    Off,
+    /// Per region, the crop of the atlas's seen texels most like the region's rim. Default.
+    #[default]
+    Auto,
+    /// This image for every region, one pixel per atlas texel, its top towards "up".
+    File(PathBuf),
+}
+
+impl std::fmt::Display for ExemplarSource {
+    /// The text `from_str` reads.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ExemplarSource::Off => f.write_str("off"),
+            ExemplarSource::Auto => f.write_str("auto"),
+            ExemplarSource::File(p) => write!(f, "{}", p.display()),
+        }
+    }
+}
+
+impl std::str::FromStr for ExemplarSource {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "off" => Ok(ExemplarSource::Off),
+            "auto" => Ok(ExemplarSource::Auto),
+            "" => Err("expected auto, off or an image file".into()),
+            p => Ok(ExemplarSource::File(PathBuf::from(p))),
+        }
+    }
+}
+
+/// Options for [`synthesize`].
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SynthOptions {
+    /// Where exemplars come from. Default: [`ExemplarSource::Auto`].
+    pub exemplar: ExemplarSource,
+    /// Patch radius, exemplar texels; 0 = eight feature scales of the observed texture,
+    /// between 16 and 48. Default: 0.
+    pub radius: f64,
+    /// Exemplar offsets tried per patch; the one agreeing best with the patches already
+    /// placed wins. Default: 16.
+    pub candidates: usize,
+    /// Random seed (patch order and offsets): the same seed gives the same bytes. Default: 1.
+    pub seed: u64,
+}
+
+impl Default for SynthOptions {
+    fn default() -> Self {
+        SynthOptions {
+            exemplar: ExemplarSource::Auto,
+            radius: 0.0,
+            candidates: 16,
+            seed: 1,
+        }
+    }
+}
+
+/// Patch radii `radius` may take, texels (0 = automatic).
+pub const RADIUS_RANGE: std::ops::RangeInclusive<f64> = 0.0..=512.0;
+
+impl SynthOptions {
+    /// Checks the values.
+    pub fn validate(&self) -> Result<()> {
+        if !RADIUS_RANGE.contains(&self.radius) || (self.radius > 0.0 && self.radius < 4.0) {
+            return Err(Error::option(
+                "synth_radius",
+                format!(
+                    "{} texels: expected 0 (automatic) or a radius from 4 to 512",
+                    self.radius
+                ),
+            ));
+        }
+        if self.candidates == 0 {
+            return Err(Error::option("synth_candidates", "must be at least 1"));
+        }
+        Ok(())
+    }
+}
+
+/// Where one region's exemplar came from.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "kind", rename_all = "lowercase")]
+pub enum ExemplarUsed {
+    /// A crop of the atlas (left column, top row, side in texels).
+    Atlas {
+        /// Left column.
+        x: usize,
+        /// Top row.
+        y: usize,
+        /// Side.
+        size: usize,
+    },
+    /// The user's image.
+    File,
+    /// None fitted (no crop of seen texels large enough): the low band alone.
+    None,
+}
+
+/// What stage 6 did for one region.
+#[derive(Debug, Clone, Serialize)]
+pub struct RegionReport {
+    /// Faces.
+    pub faces: usize,
+    /// Unseen texels written.
+    pub texels: u64,
+    /// Largest distance from the rim on the surface, texels.
+    pub depth_texels: f64,
+    /// Why restoration handed it over.
+    pub reason: Handover,
+    /// Its exemplar.
+    pub exemplar: ExemplarUsed,
+    /// Patches grown over it.
+    pub patches: usize,
+}
+
+/// What stage 6 did.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct SynthReport {
+    /// Per region, in order of their first face.
+    pub regions: Vec<RegionReport>,
+    /// Texels written.
+    pub texels: u64,
+    /// Of those, texels no patch reached (low band only).
+    pub texels_low_only: u64,
+    /// Patches in all.
+    pub patches: usize,
+    /// Patch radius used, exemplar texels.
+    pub radius: f64,
+    /// The direction taken as up (the photographs' mean up), scene frame.
+    pub up: [f64; 3],
+    /// Seconds: low band, exemplars, patches, baking, in all.
+    pub seconds_low_band: f64,
+    /// See `seconds_low_band`.
+    pub seconds_exemplars: f64,
+    /// See `seconds_low_band`.
+    pub seconds_patches: f64,
+    /// See `seconds_low_band`.
+    pub seconds_bake: f64,
+    /// See `seconds_low_band`.
+    pub seconds: f64,
+}
+
+/// A square crop's detail: the crop minus its Gaussian blur (sigma `sigma`), so it carries
+/// texture, not shading or colour gradients (the low band brings those).
+fn detail(texels: &[[f32; 3]], w: usize, h: usize, sigma: f64) -> Vec<[f32; 3]> {
+    let r = (3.0 * sigma).ceil() as i64;
+    let k: Vec<f32> = (-r..=r)
+        .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp() as f32)
+        .collect();
+    let ks: f32 = k.iter().sum();
+    let pass = |src: &[[f32; 3]], horizontal: bool| -> Vec<[f32; 3]> {
+        (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as i64, (i / w) as i64);
+                let mut acc = [0f32; 3];
+                for (j, kv) in k.iter().enumerate() {
+                    let d = j as i64 - r;
+                    let (xx, yy) = if horizontal {
+                        ((x + d).clamp(0, w as i64 - 1), y)
+                    } else {
+                        (x, (y + d).clamp(0, h as i64 - 1))
+                    };
+                    let s = src[yy as usize * w + xx as usize];
+                    for c in 0..3 {
+                        acc[c] += kv * s[c];
+                    }
+                }
+                acc.map(|a| a / ks)
+            })
+            .collect()
+    };
+    let blurred = pass(&pass(texels, true), false);
+    texels
+        .iter()
+        .zip(&blurred)
+        .map(|(t, b)| std::array::from_fn(|c| t[c] - b[c]))
+        .collect()
+}
+
+/// Stage 6: fills the unseen texels of every region in `left` (low band plus exemplar
+/// detail), then extends the charts into the gutter again. `up` orients the patches (the
+/// photographs' mean up); `user` is the user's exemplar image when
+/// [`ExemplarSource::File`] is chosen (read by the caller).
+#[allow(clippy::too_many_arguments)]
+pub fn synthesize(
+    mesh: &Mesh,
+    normals: &[Vector3<f64>],
+    atlas: &Atlas,
+    res: &mut Resampled,
+    left: &Unrestored,
+    up: Vector3<f64>,
+    user: Option<&image::Rgb32FImage>,
+    opts: &SynthOptions,
+    gutter_fill: u32,
+) -> Result<SynthReport> {
+    opts.validate()?;
+    let wall = Instant::now();
+    let up = if up.norm() > 1e-12 {
+        up.normalize()
+    } else {
+        Vector3::z()
+    };
+    let radius = if opts.radius > 0.0 {
+        opts.radius
+    } else {
+        (8.0 * left.feature_scale).clamp(16.0, 48.0)
+    };
+    let mut report = SynthReport {
+        radius,
+        up: up.into(),
+        ..Default::default()
+    };
+    if opts.exemplar == ExemplarSource::Off || left.regions.is_empty() {
+        return Ok(report);
+    }
+    if mesh.num_faces() != atlas.face_chart.len() || normals.len() != mesh.num_vertices() {
+        return Err(Error::Internal(
+            "stage 6 was given an atlas or normals of another mesh".into(),
+        ));
+    }
+    let nf = mesh.num_faces();
+    let mut member = vec![false; nf];
+    let mut slot = vec![u32::MAX; nf];
+    let mut count = 0u32;
+    for r in &left.regions {
+        for &f in &r.faces {
+            member[f as usize] = true;
+            slot[f as usize] = count;
+            count += 1;
+        }
+    }
+    let mut t = Instant::now();
+    let (low, fixed) = surface::low_band(mesh, atlas, &res.color, &member, &res.vertex_colors);
+    report.seconds_low_band = t.elapsed().as_secs_f64();
+    t = Instant::now();
+    // Exemplars: the user's, or per region the atlas crop most like its rim.
+    let tpu = crate::restore::texels_per_unit(atlas);
+    let (lo, hi) = mesh.bounding_box();
+    let object_radius = (hi - lo).norm() / 2.0;
+    let sigma = radius / 4.0;
+    let mut sources: Vec<Source> = Vec::new();
+    let adj = crate::mesh::topology::face_adjacency(mesh);
+    let mut used: Vec<(ExemplarUsed, Option<u32>)> = Vec::with_capacity(left.regions.len());
+    if let Some(img) = user {
+        let (w, h) = (img.width() as usize, img.height() as usize);
+        let texels: Vec<[f32; 3]> = img.pixels().map(|p| p.0).collect();
+        let ex = plane::Exemplar::new(w, h, &detail(&texels, w, h, sigma))?;
+        sources.push(Source {
+            ex,
+            m: Matrix2::new(tpu, 0.0, 0.0, -tpu),
+        });
+        used.extend(left.regions.iter().map(|_| (ExemplarUsed::File, Some(0))));
+    } else {
+        let side = (((2.0 * radius + 8.0) / 8.0).ceil() * 8.0) as usize;
+        let lag = (sigma.round() as usize).max(1);
+        let mut cands = pick::candidates(mesh, atlas, &res.color, &res.source, &up, side, lag);
+        if cands.is_empty() {
+            cands = pick::candidates(mesh, atlas, &res.color, &res.source, &up, side / 2, lag);
+        }
+        let mut chosen: Vec<(usize, usize, usize)> = Vec::new();
+        for r in &left.regions {
+            let (mut colour, mut cnt) = ([0f64; 3], 0.0f64);
+            let mut centre = Vector3::zeros();
+            let (mut facing, mut area) = (0.0, 0.0);
+            for &f in &r.faces {
+                let na = mesh.face_normal_area(FaceId(f));
+                facing += na.dot(&up);
+                area += na.norm();
+                for v in &mesh.faces[f as usize] {
+                    if fixed[v.idx()] {
+                        for k in 0..3 {
+                            colour[k] += low[v.idx()][k] as f64;
+                        }
+                        centre += mesh.positions[v.idx()].coords;
+                        cnt += 1.0;
+                    }
+                }
+            }
+            if cnt == 0.0 {
+                // No rim: the region's own place and the fill's colours.
+                for &f in &r.faces {
+                    let tri = mesh.triangle(FaceId(f));
+                    centre += (tri[0].coords + tri[1].coords + tri[2].coords) / 3.0;
+                    for v in &mesh.faces[f as usize] {
+                        for k in 0..3 {
+                            colour[k] += low[v.idx()][k] as f64 / 3.0;
+                        }
+                    }
+                    cnt += 1.0;
+                }
+            }
+            // The photographed faces around the region.
+            let mut rim_faces: Vec<u32> = r
+                .faces
+                .iter()
+                .flat_map(|&f| adj[f as usize])
+                .filter(|&g| g != crate::mesh::topology::NO_FACE && !member[g as usize])
+                .collect();
+            rim_faces.sort_unstable();
+            rim_faces.dedup();
+            let look = pick::RimLook {
+                detail: pick::faces_detail(atlas, &res.color, &res.source, &rim_faces, lag),
+                colour: colour.map(|c| (c / cnt.max(1.0)) as f32),
+                facing_up: facing / area.max(1e-300),
+                centre: nalgebra::Point3::from(centre / cnt.max(1.0)),
+            };
+            match pick::choose(&cands, &look, object_radius) {
+                Some(c) => {
+                    let key = (c.x, c.y, c.size);
+                    let id = match chosen.iter().position(|k| *k == key) {
+                        Some(i) => i,
+                        None => {
+                            let n = atlas.size as usize;
+                            let data: &[f32] = res.color.as_raw();
+                            let texels: Vec<[f32; 3]> = (0..c.size * c.size)
+                                .map(|j| {
+                                    let i = (c.y + j / c.size) * n + c.x + j % c.size;
+                                    [data[i * 3], data[i * 3 + 1], data[i * 3 + 2]]
+                                })
+                                .collect();
+                            let ex = plane::Exemplar::new(
+                                c.size,
+                                c.size,
+                                &detail(&texels, c.size, c.size, sigma),
+                            )?;
+                            sources.push(Source { ex, m: c.m });
+                            chosen.push(key);
+                            chosen.len() - 1
+                        }
+                    };
+                    used.push((
+                        ExemplarUsed::Atlas {
+                            x: c.x,
+                            y: c.y,
+                            size: c.size,
+                        },
+                        Some(id as u32),
+                    ));
+                }
+                None => used.push((ExemplarUsed::None, None)),
+            }
+        }
+    }
+    report.seconds_exemplars = t.elapsed().as_secs_f64();
+    t = Instant::now();
+    // One radius for growing and baking: the largest every exemplar holds.
+    let radius = sources
+        .iter()
+        .map(|s| plane::max_radius(&s.ex))
+        .fold(radius, f64::min);
+    report.radius = radius;
+    let mut rng = SplitMix64::new(opts.seed);
+    let mut patches = Vec::new();
+    let mut face_patches: Vec<Vec<u32>> = vec![Vec::new(); count as usize];
+    let mut per_region = Vec::with_capacity(left.regions.len());
+    for (r, (_, src)) in left.regions.iter().zip(&used) {
+        let grown = match src {
+            Some(id) => {
+                let s = &sources[*id as usize];
+                let layout = Layout {
+                    radius,
+                    candidates: opts.candidates,
+                };
+                surface::grow_patches(
+                    mesh,
+                    &adj,
+                    &r.faces,
+                    &slot,
+                    s,
+                    *id,
+                    &up,
+                    &layout,
+                    &mut rng,
+                    &mut patches,
+                    &mut face_patches,
+                )
+            }
+            None => 0,
+        };
+        per_region.push(grown);
+    }
+    report.seconds_patches = t.elapsed().as_secs_f64();
+    t = Instant::now();
+    let (written, bare) = surface::bake(
+        mesh,
+        normals,
+        atlas,
+        &mut res.color,
+        &res.source,
+        &slot,
+        &low,
+        &patches,
+        &face_patches,
+        &sources,
+        radius,
+    );
+    crate::resample::refill_gutter(res, gutter_fill);
+    report.seconds_bake = t.elapsed().as_secs_f64();
+    report.texels = written;
+    report.texels_low_only = bare;
+    report.patches = patches.len();
+    report.regions = left
+        .regions
+        .iter()
+        .zip(used)
+        .zip(per_region)
+        .map(|((r, (ex, _)), p)| RegionReport {
+            faces: r.faces.len(),
+            texels: r.texels,
+            depth_texels: r.depth_texels,
+            reason: r.reason,
+            exemplar: ex,
+            patches: p,
+        })
+        .collect();
+    report.seconds = wall.elapsed().as_secs_f64();
+    Ok(report)
+}

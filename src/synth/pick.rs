@@ -1,0 +1,278 @@
+//! Exemplars from what the photographs saw: square crops of the atlas lying wholly in seen
+//! texels of one chart, described by how their surface faces "up", their mean colour and
+//! where they are; each region takes the crop most like its rim (orientation, colour, place).
+//! A crop is flattened at the texel density the photographs gave it: its map from the surface
+//! (the chart's Jacobian) goes with it.
+
+use super::surface::tangent_up;
+use crate::atlas::Atlas;
+use crate::mesh::{FaceId, Mesh};
+use crate::resample::TexelSource;
+use nalgebra::{Matrix2, Matrix2x3, Point3, Vector3};
+use rayon::prelude::*;
+
+/// Side of the blocks the seen test works on, texels.
+const BLOCK: usize = 8;
+
+/// A crop of the atlas that can serve as an exemplar.
+#[derive(Debug, Clone)]
+pub(super) struct Candidate {
+    /// Left column.
+    pub(super) x: usize,
+    /// Top row.
+    pub(super) y: usize,
+    /// Side, texels.
+    pub(super) size: usize,
+    /// Mean colour.
+    pub(super) mean: [f32; 3],
+    /// Mean of the surface normal's component along up.
+    pub(super) facing_up: f64,
+    /// Mean surface point.
+    pub(super) centre: Point3<f64>,
+    /// Detail energy: mean squared difference between a texel's luma and the mean of its
+    /// four neighbours `lag` texels away (the detail scale stage 6 pastes).
+    pub(super) detail: f64,
+    /// Largest distance between the mean colours of the crop's four quadrants: a colour edge
+    /// or gradient inside the crop, which would paste as blotches.
+    pub(super) spread: f64,
+    /// Tangent offsets (right, up; scene units) to crop texels.
+    pub(super) m: Matrix2<f64>,
+}
+
+/// The map from face `f`'s tangent offsets (right, up) to texels.
+pub(super) fn face_map(
+    mesh: &Mesh,
+    atlas: &Atlas,
+    f: usize,
+    up: &Vector3<f64>,
+) -> Option<Matrix2<f64>> {
+    let t = atlas.face_texels(f)?;
+    let p = mesh.triangle(FaceId(f as u32));
+    let (e1, e2) = (p[1] - p[0], p[2] - p[0]);
+    let n = e1.cross(&e2);
+    if n.norm() < 1e-300 {
+        return None;
+    }
+    let n = n.normalize();
+    // J E = U with E the 3D edges and U the texel edges: J = U (E^T E)^-1 E^T.
+    let g = Matrix2::new(e1.dot(&e1), e1.dot(&e2), e2.dot(&e1), e2.dot(&e2));
+    let gi = g.try_inverse()?;
+    let u = Matrix2::from_columns(&[t[1] - t[0], t[2] - t[0]]);
+    let et = Matrix2x3::from_rows(&[e1.transpose(), e2.transpose()]);
+    let j = u * gi * et;
+    let tu = tangent_up(&n, up);
+    let right = tu.cross(&n);
+    Some(Matrix2::from_columns(&[j * right, j * tu]))
+}
+
+/// Every crop of side `size` (a multiple of [`BLOCK`]) on a grid of half its side whose
+/// texels were all coloured by photographs and belong to one chart; detail measured at `lag`
+/// texels.
+pub(super) fn candidates(
+    mesh: &Mesh,
+    atlas: &Atlas,
+    color: &image::Rgb32FImage,
+    source: &[u8],
+    up: &Vector3<f64>,
+    size: usize,
+    lag: usize,
+) -> Vec<Candidate> {
+    let n = atlas.size as usize;
+    let nb = n / BLOCK;
+    if size < BLOCK || size > n || nb == 0 {
+        return Vec::new();
+    }
+    let full: Vec<bool> = (0..nb * nb)
+        .into_par_iter()
+        .map(|b| {
+            let (bx, by) = (b % nb, b / nb);
+            (0..BLOCK).all(|dy| {
+                let row = (by * BLOCK + dy) * n + bx * BLOCK;
+                source[row..row + BLOCK]
+                    .iter()
+                    .all(|&s| s == TexelSource::Photos as u8)
+            })
+        })
+        .collect();
+    // Summed-area table over blocks.
+    let mut sat = vec![0u32; (nb + 1) * (nb + 1)];
+    for by in 0..nb {
+        for bx in 0..nb {
+            sat[(by + 1) * (nb + 1) + bx + 1] = u32::from(full[by * nb + bx])
+                + sat[by * (nb + 1) + bx + 1]
+                + sat[(by + 1) * (nb + 1) + bx]
+                - sat[by * (nb + 1) + bx];
+        }
+    }
+    let sb = size / BLOCK;
+    let mut step = (sb / 2).max(1);
+    while (nb / step).pow(2) > 40_000 {
+        step *= 2;
+    }
+    let positions: Vec<(usize, usize)> = (0..=nb - sb)
+        .step_by(step)
+        .flat_map(|by| (0..=nb - sb).step_by(step).map(move |bx| (bx, by)))
+        .filter(|&(bx, by)| {
+            let s = |x: usize, y: usize| sat[y * (nb + 1) + x];
+            s(bx + sb, by + sb) + s(bx, by) - s(bx + sb, by) - s(bx, by + sb) == (sb * sb) as u32
+        })
+        .collect();
+    let data: &[f32] = color.as_raw();
+    positions
+        .par_iter()
+        .filter_map(|&(bx, by)| {
+            let (x0, y0) = (bx * BLOCK, by * BLOCK);
+            let chart = atlas.face_chart[atlas.owner(y0 * n + x0)? as usize];
+            let (mut mean, mut facing, mut centre, mut m, mut count) =
+                ([0f64; 3], 0.0, Vector3::zeros(), Matrix2::zeros(), 0usize);
+            let luma = |i: usize| {
+                0.299 * data[i * 3] as f64
+                    + 0.587 * data[i * 3 + 1] as f64
+                    + 0.114 * data[i * 3 + 2] as f64
+            };
+            let mut detail = 0.0;
+            let mut quad = [[0f64; 4]; 4];
+            for y in (y0..y0 + size).step_by(4) {
+                for x in (x0..x0 + size).step_by(4) {
+                    let i = y * n + x;
+                    let f = atlas.owner(i)? as usize;
+                    if atlas.face_chart[f] != chart {
+                        return None;
+                    }
+                    let nrm = mesh.face_normal_area(FaceId(f as u32));
+                    let tri = mesh.triangle(FaceId(f as u32));
+                    for k in 0..3 {
+                        mean[k] += data[i * 3 + k] as f64;
+                    }
+                    facing += nrm.normalize().dot(up);
+                    centre += (tri[0].coords + tri[1].coords + tri[2].coords) / 3.0;
+                    m += face_map(mesh, atlas, f, up)?;
+                    let (xa, xb) = (x.max(x0 + lag) - lag, (x + lag).min(x0 + size - 1));
+                    let (ya, yb) = (y.max(y0 + lag) - lag, (y + lag).min(y0 + size - 1));
+                    let around =
+                        (luma(y * n + xa) + luma(y * n + xb) + luma(ya * n + x) + luma(yb * n + x))
+                            / 4.0;
+                    detail += (luma(i) - around).powi(2);
+                    let q = &mut quad
+                        [usize::from(x >= x0 + size / 2) + 2 * usize::from(y >= y0 + size / 2)];
+                    for k in 0..3 {
+                        q[k] += data[i * 3 + k] as f64;
+                    }
+                    q[3] += 1.0;
+                    count += 1;
+                }
+            }
+            let c = count as f64;
+            let qm: Vec<[f64; 3]> = quad
+                .iter()
+                .map(|q| std::array::from_fn(|k| q[k] / q[3].max(1.0)))
+                .collect();
+            let mut spread = 0f64;
+            for a in &qm {
+                for b in &qm {
+                    spread = spread.max((0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt());
+                }
+            }
+            Some(Candidate {
+                spread,
+                x: x0,
+                y: y0,
+                size,
+                mean: mean.map(|v| (v / c) as f32),
+                facing_up: facing / c,
+                centre: Point3::from(centre / c),
+                detail: detail / c,
+                m: m / c,
+            })
+        })
+        .collect()
+}
+
+/// What a region's rim looks like, for choosing its exemplar.
+#[derive(Debug, Clone)]
+pub(super) struct RimLook {
+    /// Mean colour around the rim.
+    pub(super) colour: [f32; 3],
+    /// Area-weighted mean of the region's normals along up.
+    pub(super) facing_up: f64,
+    /// Mean position of the rim.
+    pub(super) centre: Point3<f64>,
+    /// Detail energy of the photographed texels around the rim, measured as
+    /// [`Candidate::detail`]; `None` when there are none.
+    pub(super) detail: Option<f64>,
+}
+
+/// Detail energy (as [`Candidate::detail`]) of the photographed texels of `faces`.
+pub(super) fn faces_detail(
+    atlas: &Atlas,
+    color: &image::Rgb32FImage,
+    source: &[u8],
+    faces: &[u32],
+    lag: usize,
+) -> Option<f64> {
+    let n = atlas.size as usize;
+    let data: &[f32] = color.as_raw();
+    let luma = |i: usize| {
+        0.299 * data[i * 3] as f64 + 0.587 * data[i * 3 + 1] as f64 + 0.114 * data[i * 3 + 2] as f64
+    };
+    let seen = |i: usize| source[i] == TexelSource::Photos as u8;
+    let (mut sum, mut count) = (0.0, 0usize);
+    for &f in faces {
+        let Some(((r0, r1), (c0, c1))) = atlas.face_rect(f as usize) else {
+            continue;
+        };
+        for y in r0.max(lag)..=r1.min(n - 1 - lag) {
+            for x in c0.max(lag)..=c1.min(n - 1 - lag) {
+                let i = y * n + x;
+                if atlas.owner(i) != Some(f) || !seen(i) {
+                    continue;
+                }
+                let nb = [i - lag, i + lag, i - lag * n, i + lag * n];
+                if nb.iter().all(|&j| seen(j)) {
+                    let around = nb.iter().map(|&j| luma(j)).sum::<f64>() / 4.0;
+                    sum += (luma(i) - around).powi(2);
+                    count += 1;
+                }
+            }
+        }
+    }
+    (count >= 64).then(|| sum / count as f64)
+}
+
+/// The candidate most like `rim`: orientation against up (0.6 apart costs 1), mean colour
+/// (0.3 apart costs 1), distance (half the object's radius costs 1), a colour change inside
+/// the crop (quadrant means 0.05 apart cost 1), and detail: twice the log of the ratio to the
+/// rim's detail or the candidates' median, whichever is larger (the rim is often seen at
+/// grazing angles, blurred; the surface it continues is not). The first on ties.
+pub(super) fn choose<'a>(
+    cands: &'a [Candidate],
+    rim: &RimLook,
+    radius: f64,
+) -> Option<&'a Candidate> {
+    let typical = {
+        let mut d: Vec<f64> = cands.iter().map(|c| c.detail).collect();
+        if d.is_empty() {
+            return None;
+        }
+        let k = d.len() / 2;
+        *d.select_nth_unstable_by(k, f64::total_cmp).1
+    };
+    let cost = |c: &Candidate| {
+        let want = rim.detail.unwrap_or(typical).max(typical);
+        let short = (want.max(1e-12) / c.detail.max(1e-12)).ln().abs();
+        let dc = (0..3)
+            .map(|k| ((c.mean[k] - rim.colour[k]) as f64).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        (c.facing_up - rim.facing_up).abs() / 0.6
+            + dc / 0.3
+            + (c.centre - rim.centre).norm() / (0.5 * radius).max(1e-12)
+            + c.spread / 0.05
+            + 2.0 * short
+    };
+    cands
+        .iter()
+        .map(|c| (cost(c), c))
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, c)| c)
+}

@@ -1,0 +1,531 @@
+//! Stage 6 on the surface: a smooth low band over each region (harmonic on the mesh, fixed
+//! at the rim to the colours around it), overlapping patches grown on the surface (lapped
+//! textures: geodesic growth from random uncovered faces, each flattened onto its tangent
+//! plane with "up" as its direction), exemplar detail pasted into each patch at the offset
+//! agreeing best with the patches already placed, and the histogram-preserving blend of the
+//! overlaps, evaluated at every texel's surface point: chart borders inside a region do not
+//! show, because both sides of a border are the same points of the surface.
+
+use super::plane::{blend, bump, choose_offset, Exemplar};
+use crate::atlas::Atlas;
+use crate::mesh::topology::NO_FACE;
+use crate::mesh::{FaceId, Mesh};
+use crate::resample::TexelSource;
+use crate::rng::SplitMix64;
+use nalgebra::{Matrix2, Point3, Vector2, Vector3};
+use rayon::prelude::*;
+
+/// Exemplar detail with its map from the surface: `m` takes a tangent offset (right, up) in
+/// scene units to exemplar texels, so scale and orientation follow where it was taken from.
+pub(super) struct Source {
+    pub(super) ex: Exemplar,
+    pub(super) m: Matrix2<f64>,
+}
+
+impl Source {
+    /// Exemplar texels per scene unit (geometric mean over both axes).
+    pub(super) fn density(&self) -> f64 {
+        self.m.determinant().abs().sqrt().max(1e-12)
+    }
+}
+
+/// A patch: its tangent frame on the surface and where its content comes from.
+#[derive(Debug, Clone)]
+pub(super) struct Patch {
+    origin: Point3<f64>,
+    right: Vector3<f64>,
+    up: Vector3<f64>,
+    normal: Vector3<f64>,
+    offset: [f64; 2],
+    source: u32,
+}
+
+impl Patch {
+    /// Tangent coordinates (right, up) of `p`, scene units.
+    #[inline]
+    fn coords(&self, p: &Point3<f64>) -> Vector2<f64> {
+        let d = p - self.origin;
+        Vector2::new(d.dot(&self.right), d.dot(&self.up))
+    }
+}
+
+fn centroid(mesh: &Mesh, f: u32) -> Point3<f64> {
+    let t = mesh.triangle(FaceId(f));
+    Point3::from((t[0].coords + t[1].coords + t[2].coords) / 3.0)
+}
+
+/// The tangent direction "up" takes at normal `n`: up projected onto the tangent plane, or a
+/// fixed horizontal axis where the surface faces up or down.
+pub(super) fn tangent_up(n: &Vector3<f64>, up: &Vector3<f64>) -> Vector3<f64> {
+    let t = up - n * n.dot(up);
+    if t.norm() > 0.2 {
+        return t.normalize();
+    }
+    let side = if up.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    let s = side - up * side.dot(up);
+    let t = s - n * n.dot(&s);
+    if t.norm() > 1e-9 {
+        t.normalize()
+    } else {
+        n.cross(&Vector3::new(0.3, 0.5, 0.8)).normalize()
+    }
+}
+
+/// The low band over the regions, per vertex: the vertex-colour fill (`init`, which carries
+/// colour from the nearest photographed vertices) plus a harmonic correction (uniform
+/// weights, on the regions' faces) that makes it meet, at every region vertex touching a face
+/// outside the regions, the mean colour of that face's texels (as restored or photographed).
+/// Vertices not in a region keep `init`; so does a region with no rim (a small pull towards
+/// no correction keeps the system definite). Also returns which vertices were fixed.
+pub(super) fn low_band(
+    mesh: &Mesh,
+    atlas: &Atlas,
+    color: &image::Rgb32FImage,
+    member: &[bool],
+    init: &[[f32; 3]],
+) -> (Vec<[f32; 3]>, Vec<bool>) {
+    let nv = mesh.num_vertices();
+    let mut in_region = vec![false; nv];
+    for (f, fv) in mesh.faces.iter().enumerate() {
+        if member[f] {
+            for v in fv {
+                in_region[v.idx()] = true;
+            }
+        }
+    }
+    // Rim faces: outside the regions, with a region vertex. Their mean colour fixes it.
+    let mut slot = vec![u32::MAX; mesh.num_faces()];
+    let mut rim_faces = Vec::new();
+    for (f, fv) in mesh.faces.iter().enumerate() {
+        if !member[f] && fv.iter().any(|v| in_region[v.idx()]) {
+            slot[f] = rim_faces.len() as u32;
+            rim_faces.push(f as u32);
+        }
+    }
+    let mut sums = vec![[0f64; 4]; rim_faces.len()];
+    let data: &[f32] = color.as_raw();
+    for i in 0..atlas.size as usize * atlas.size as usize {
+        if let Some(f) = atlas.owner(i) {
+            let s = slot[f as usize];
+            if s != u32::MAX {
+                let acc = &mut sums[s as usize];
+                for k in 0..3 {
+                    acc[k] += data[i * 3 + k] as f64;
+                }
+                acc[3] += 1.0;
+            }
+        }
+    }
+    let mut fixed_sum = vec![[0f64; 4]; nv];
+    for (s, &f) in rim_faces.iter().enumerate() {
+        if sums[s][3] > 0.0 {
+            for v in &mesh.faces[f as usize] {
+                if in_region[v.idx()] {
+                    for k in 0..4 {
+                        fixed_sum[v.idx()][k] += sums[s][k];
+                    }
+                }
+            }
+        }
+    }
+    let fixed: Vec<bool> = (0..nv).map(|v| fixed_sum[v][3] > 0.0).collect();
+    let mut out: Vec<[f32; 3]> = init.to_vec();
+    for v in 0..nv {
+        if fixed[v] {
+            out[v] = std::array::from_fn(|k| (fixed_sum[v][k] / fixed_sum[v][3]) as f32);
+        }
+    }
+    // Unknowns and their neighbours through region faces.
+    let mut unknown = vec![u32::MAX; nv];
+    let mut vars = Vec::new();
+    for v in 0..nv {
+        if in_region[v] && !fixed[v] {
+            unknown[v] = vars.len() as u32;
+            vars.push(v as u32);
+        }
+    }
+    if vars.is_empty() {
+        return (out, fixed);
+    }
+    let mut nbr: Vec<Vec<u32>> = vec![Vec::new(); vars.len()];
+    for (f, fv) in mesh.faces.iter().enumerate() {
+        if !member[f] {
+            continue;
+        }
+        for k in 0..3 {
+            let (a, b) = (fv[k].0, fv[(k + 1) % 3].0);
+            if unknown[a as usize] != u32::MAX {
+                nbr[unknown[a as usize] as usize].push(b);
+            }
+            if unknown[b as usize] != u32::MAX {
+                nbr[unknown[b as usize] as usize].push(a);
+            }
+        }
+    }
+    for n in &mut nbr {
+        n.sort_unstable();
+        n.dedup();
+    }
+    const EPS: f64 = 1e-3;
+    for c in 0..3 {
+        // (L + eps I) x = b: L the graph Laplacian over unknowns, b the fixed neighbours'
+        // corrections. Conjugate gradients, dot products summed in a fixed order (same bytes
+        // on any thread count).
+        let diag: Vec<f64> = nbr.iter().map(|n| n.len() as f64 + EPS).collect();
+        let b: Vec<f64> = (0..vars.len())
+            .map(|i| {
+                let fixed_part: f64 = nbr[i]
+                    .iter()
+                    .filter(|&&u| unknown[u as usize] == u32::MAX)
+                    .map(|&u| (out[u as usize][c] - init[u as usize][c]) as f64)
+                    .sum();
+                fixed_part
+            })
+            .collect();
+        let apply = |x: &[f64], y: &mut [f64]| {
+            y.par_iter_mut().enumerate().for_each(|(i, yi)| {
+                let mut s = diag[i] * x[i];
+                for &u in &nbr[i] {
+                    let j = unknown[u as usize];
+                    if j != u32::MAX {
+                        s -= x[j as usize];
+                    }
+                }
+                *yi = s;
+            });
+        };
+        let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+        // The correction, from zero.
+        let mut x: Vec<f64> = vec![0.0; vars.len()];
+        let mut ax = vec![0.0; x.len()];
+        apply(&x, &mut ax);
+        let mut r: Vec<f64> = b.iter().zip(&ax).map(|(b, a)| b - a).collect();
+        // Jacobi preconditioner.
+        let mut z: Vec<f64> = r.iter().zip(&diag).map(|(r, d)| r / d).collect();
+        let mut p = z.clone();
+        let mut rz = dot(&r, &z);
+        let b_norm = dot(&b, &b).sqrt().max(1e-12);
+        let mut ap = vec![0.0; x.len()];
+        for _ in 0..2000 {
+            if dot(&r, &r).sqrt() < 1e-6 * b_norm {
+                break;
+            }
+            apply(&p, &mut ap);
+            let alpha = rz / dot(&p, &ap).max(1e-300);
+            for i in 0..x.len() {
+                x[i] += alpha * p[i];
+                r[i] -= alpha * ap[i];
+            }
+            for i in 0..x.len() {
+                z[i] = r[i] / diag[i];
+            }
+            let rz_new = dot(&r, &z);
+            let beta = rz_new / rz.max(1e-300);
+            rz = rz_new;
+            for i in 0..x.len() {
+                p[i] = z[i] + beta * p[i];
+            }
+        }
+        for (i, &v) in vars.iter().enumerate() {
+            out[v as usize][c] = init[v as usize][c] + x[i] as f32;
+        }
+    }
+    (out, fixed)
+}
+
+/// Options of the patch layout.
+pub(super) struct Layout {
+    /// Patch radius in exemplar texels.
+    pub(super) radius: f64,
+    /// Offsets tried per patch.
+    pub(super) candidates: usize,
+}
+
+/// Distance from `p` to the triangle `t` (closest point by regions, Ericson 5.1.5).
+fn point_triangle(p: &Point3<f64>, t: &[Point3<f64>; 3]) -> f64 {
+    let (a, b, c) = (t[0], t[1], t[2]);
+    let (ab, ac, ap) = (b - a, c - a, p - a);
+    let (d1, d2) = (ab.dot(&ap), ac.dot(&ap));
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return ap.norm();
+    }
+    let bp = p - b;
+    let (d3, d4) = (ab.dot(&bp), ac.dot(&bp));
+    if d3 >= 0.0 && d4 <= d3 {
+        return bp.norm();
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        let v = d1 / (d1 - d3);
+        return (p - (a + ab * v)).norm();
+    }
+    let cp = p - c;
+    let (d5, d6) = (ab.dot(&cp), ac.dot(&cp));
+    if d6 >= 0.0 && d5 <= d6 {
+        return cp.norm();
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        let w = d2 / (d2 - d6);
+        return (p - (a + ac * w)).norm();
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        return (p - (b + (c - b) * w)).norm();
+    }
+    let denom = 1.0 / (va + vb + vc);
+    let (v, w) = (vb * denom, vc * denom);
+    (p - (a + ab * v + ac * w)).norm()
+}
+
+/// Patches covering `faces` (one region, all of whose patches take `source`): sample points
+/// over the faces (corners, centroids, and a grid on faces larger than the patch core) are
+/// visited in a seeded random order, and each one no patch core covers yet seeds a patch,
+/// grown through neighbouring faces within reach of it that face the same way. Appends to
+/// `patches` and to each face's patch list (`face_patches`, indexed through `slot`).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn grow_patches(
+    mesh: &Mesh,
+    adj: &[[u32; 3]],
+    faces: &[u32],
+    slot: &[u32],
+    src: &Source,
+    source_id: u32,
+    up: &Vector3<f64>,
+    layout: &Layout,
+    rng: &mut SplitMix64,
+    patches: &mut Vec<Patch>,
+    face_patches: &mut [Vec<u32>],
+) -> usize {
+    let r_world = layout.radius / src.density();
+    let reach = 1.2 * r_world;
+    let core = 0.5 * r_world;
+    let normal = |f: u32| mesh.face_normal_area(FaceId(f));
+    // A region's faces hold consecutive slots: `local` indexes this region's scratch.
+    let base = faces.first().map_or(0, |&f| slot[f as usize]);
+    let inside = |g: u32| {
+        g != NO_FACE && {
+            let s = slot[g as usize];
+            s != u32::MAX && s >= base && ((s - base) as usize) < faces.len()
+        }
+    };
+    let local = |f: u32| (slot[f as usize] - base) as usize;
+    // Sample points per face, spaced at most half the core apart.
+    let mut points: Vec<(Point3<f64>, u32)> = Vec::new();
+    let mut first = Vec::with_capacity(faces.len() + 1);
+    for &f in faces {
+        first.push(points.len());
+        let t = mesh.triangle(FaceId(f));
+        let longest = (t[1] - t[0])
+            .norm()
+            .max((t[2] - t[1]).norm())
+            .max((t[0] - t[2]).norm());
+        let k = ((longest / (0.5 * core)).ceil() as usize).clamp(1, 64);
+        for i in 0..=k {
+            for j in 0..=k - i {
+                let (u, v) = (i as f64 / k as f64, j as f64 / k as f64);
+                let p = t[0] + (t[1] - t[0]) * u + (t[2] - t[0]) * v;
+                points.push((p, f));
+            }
+        }
+        points.push((centroid(mesh, f), f));
+    }
+    first.push(points.len());
+    let mut order: Vec<u32> = (0..points.len() as u32).collect();
+    for i in (1..order.len()).rev() {
+        let j = (rng.next_u64() % (i as u64 + 1)) as usize;
+        order.swap(i, j);
+    }
+    let mut covered = vec![false; points.len()];
+    let mut visited = vec![u32::MAX; faces.len()];
+    let before = patches.len();
+    for &pi in &order {
+        if covered[pi as usize] {
+            continue;
+        }
+        let (origin, seed) = points[pi as usize];
+        let id = patches.len() as u32;
+        let n_seed = normal(seed).normalize();
+        // Faces within reach of the seed point, connected through faces within reach that
+        // face within 78 degrees of the seed's, so the patch stays a height field over its
+        // plane.
+        let mut members = vec![seed];
+        visited[local(seed)] = id;
+        let mut k = 0;
+        while k < members.len() {
+            let f = members[k];
+            k += 1;
+            for &g in &adj[f as usize] {
+                if !inside(g) || visited[local(g)] == id {
+                    continue;
+                }
+                visited[local(g)] = id;
+                if normal(g).normalize().dot(&n_seed) > 0.2
+                    && point_triangle(&origin, &mesh.triangle(FaceId(g))) <= reach
+                {
+                    members.push(g);
+                }
+            }
+        }
+        members.sort_unstable();
+        let mut n = Vector3::zeros();
+        for &f in &members {
+            if point_triangle(&origin, &mesh.triangle(FaceId(f))) <= core {
+                n += normal(f);
+            }
+        }
+        let n = if n.norm() > 0.0 {
+            n.normalize()
+        } else {
+            n_seed
+        };
+        let t = tangent_up(&n, up);
+        let b = t.cross(&n);
+        let mut patch = Patch {
+            origin,
+            right: b,
+            up: t,
+            normal: n,
+            offset: [0.0; 2],
+            source: source_id,
+        };
+        // What the patches already placed show where this one overlaps them.
+        let mut cons = Vec::new();
+        let step = (members.len() / 48).max(1);
+        for &f in members.iter().step_by(step) {
+            let list = &face_patches[slot[f as usize] as usize];
+            if list.is_empty() {
+                continue;
+            }
+            let p = centroid(mesh, f);
+            let here = src.m * patch.coords(&p);
+            if here.norm() > 0.8 * layout.radius {
+                continue;
+            }
+            let best = list
+                .iter()
+                .map(|&k| {
+                    let q = &patches[k as usize];
+                    let off = src.m * q.coords(&p);
+                    (bump(off.norm() / layout.radius), q, off)
+                })
+                .max_by(|a, b| a.0.total_cmp(&b.0));
+            if let Some((w, q, off)) = best {
+                if w > 0.25 {
+                    let g = src.ex.sample(q.offset[0] + off.x, q.offset[1] + off.y);
+                    cons.push(([here.x, here.y], g));
+                }
+            }
+        }
+        patch.offset = choose_offset(&src.ex, layout.radius, layout.candidates, rng, &cons);
+        patches.push(patch);
+        for &f in &members {
+            face_patches[slot[f as usize] as usize].push(id);
+            let l = local(f);
+            for q in first[l]..first[l + 1] {
+                if (points[q].0 - origin).norm() <= core {
+                    covered[q] = true;
+                }
+            }
+        }
+        covered[pi as usize] = true;
+    }
+    patches.len() - before
+}
+
+/// Writes stage 6's colour into every unseen texel of a region face: the low band
+/// interpolated from the vertices plus the blended patch detail at the texel's surface point.
+/// Returns (texels written, texels with no patch weight: low band only).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn bake(
+    mesh: &Mesh,
+    normals: &[Vector3<f64>],
+    atlas: &Atlas,
+    color: &mut image::Rgb32FImage,
+    source: &[u8],
+    slot: &[u32],
+    low: &[[f32; 3]],
+    patches: &[Patch],
+    face_patches: &[Vec<u32>],
+    sources: &[Source],
+    radius: f64,
+) -> (u64, u64) {
+    let n = atlas.size as usize;
+    let data: &mut [f32] = color.as_mut();
+    let counts: Vec<(u64, u64)> = data
+        .par_chunks_mut(n * 3)
+        .enumerate()
+        .map(|(y, row)| {
+            let (mut written, mut bare) = (0u64, 0u64);
+            let mut near: Vec<(f32, [f32; 3])> = Vec::new();
+            for x in 0..n {
+                let i = y * n + x;
+                let s = source[i];
+                let hidden = s == TexelSource::GreenFallback as u8
+                    || s == TexelSource::Blue as u8
+                    || s == TexelSource::Red as u8;
+                if !hidden {
+                    continue;
+                }
+                let Some(f) = atlas.owner(i) else { continue };
+                let sl = slot[f as usize];
+                if sl == u32::MAX {
+                    continue;
+                }
+                let Some(b) = atlas.barycentric(f as usize, x, y) else {
+                    continue;
+                };
+                let b = b.map(|v| v.clamp(0.0, 1.0));
+                let sum = b[0] + b[1] + b[2];
+                let b = b.map(|v| v / sum.max(1e-12));
+                let fv = mesh.faces[f as usize];
+                let tri = mesh.triangle(FaceId(f));
+                let p = Point3::from(
+                    tri[0].coords * b[0] + tri[1].coords * b[1] + tri[2].coords * b[2],
+                );
+                let np = (normals[fv[0].idx()] * b[0]
+                    + normals[fv[1].idx()] * b[1]
+                    + normals[fv[2].idx()] * b[2])
+                    .normalize();
+                let base: [f32; 3] = std::array::from_fn(|k| {
+                    low[fv[0].idx()][k] * b[0] as f32
+                        + low[fv[1].idx()][k] * b[1] as f32
+                        + low[fv[2].idx()][k] * b[2] as f32
+                });
+                near.clear();
+                let mut src_id = u32::MAX;
+                for &k in &face_patches[sl as usize] {
+                    let q = &patches[k as usize];
+                    let s = &sources[q.source as usize];
+                    let off = s.m * q.coords(&p);
+                    // Weight falls with distance in the exemplar and with the angle between
+                    // the surface and the patch plane (both continuous over the surface).
+                    let facing = ((np.dot(&q.normal) - 0.2) / 0.5).clamp(0.0, 1.0) as f32;
+                    let w = bump(off.norm() / radius) * facing;
+                    if w > 0.0 {
+                        near.push((w, s.ex.sample(q.offset[0] + off.x, q.offset[1] + off.y)));
+                        src_id = q.source;
+                    }
+                }
+                let detail = match (blend(near.iter().copied()), src_id) {
+                    (Some(g), id) if id != u32::MAX => sources[id as usize].ex.colour(g),
+                    _ => {
+                        bare += 1;
+                        [0.0; 3]
+                    }
+                };
+                for k in 0..3 {
+                    row[x * 3 + k] = base[k] + detail[k];
+                }
+                written += 1;
+            }
+            (written, bare)
+        })
+        .collect();
+    counts.iter().fold((0, 0), |a, c| (a.0 + c.0, a.1 + c.1))
+}
