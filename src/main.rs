@@ -213,7 +213,9 @@ enum Command {
         /// Gutter texels filled by extending chart colours.
         #[arg(long, default_value_t = scantex::resample::ResampleOptions::default().gutter_fill, allow_negative_numbers = true, value_parser = number_in(0u32..=1024))]
         gutter_fill: u32,
-        /// Write the classification map, coverage map and atlas layout here.
+        /// Write the stages' pictures here: triangle classes, coverage, masks, restoration
+        /// (restore.png: restored, left for stage 6 and why), stage 6's patches (synth.png)
+        /// and the atlas layout.
         #[arg(long)]
         debug_dir: Option<PathBuf>,
         /// No progress bars.

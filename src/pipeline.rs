@@ -327,6 +327,8 @@ pub struct Textured {
     pub resampled: Resampled,
     /// The unseen texels restoration left (none restored when restoration is off).
     pub unrestored: Option<restore::Unrestored>,
+    /// What stage 6 made (its report, and the patch map when kept), if it ran.
+    pub synthesized: Option<synth::Synthesized>,
     /// What happened.
     pub report: TextureReport,
 }
@@ -532,6 +534,10 @@ pub fn texture(
         }
         _ => None,
     };
+    let (synth, synthesized) = match synth {
+        Some(made) => (Some(made.report.clone()), Some(made)),
+        None => (None, None),
+    };
     let seams = seam_visibility(
         &m,
         &resampled.color,
@@ -577,6 +583,7 @@ pub fn texture(
         mesh: m,
         resampled,
         unrestored,
+        synthesized,
         report,
     })
 }
@@ -587,7 +594,8 @@ fn to_png8(img: &Rgb32FImage) -> Result<EncodedTexture> {
 
 /// Writes `<dir>/model.obj` (+ `model.mtl`, `model.png|exr`), `model.glb`, `report.json`, and
 /// with `debug` the pictures `classes.png`, `coverage.png`, `masks.png` (the photograph whose
-/// mask wins each texel), `restore.png` (texels restored and left) and `layout.png` into that
+/// mask wins each texel), `restore.png` (texels restored and left), `synth.png` (stage 6's
+/// patches, when it ran and kept its patch map) and `layout.png` into that
 /// directory. Every file appears at once or none does.
 pub fn write_outputs(
     dir: &Path,
@@ -653,7 +661,14 @@ fn write_staged(
                 "layout.png",
                 atlas::layout_picture(&result.mesh, size.min(4096)),
             ),
-        ] {
+        ]
+        .into_iter()
+        .chain(
+            result
+                .synthesized
+                .as_ref()
+                .map(|m| ("synth.png", synth::picture(r, m))),
+        ) {
             let enc = io::image::encode_png(&DynamicImage::ImageRgb8(pic))?;
             staged.write(&d.join(name), &enc.bytes)?;
         }
@@ -695,7 +710,9 @@ pub fn texture_scene(
         warnings.push(w);
     }
     scene.check_photos()?;
-    let mut result = texture(mesh, &scene.photos, opts, progress)?;
+    let mut opts = opts.clone();
+    opts.synth.keep_patch_map = debug.is_some();
+    let mut result = texture(mesh, &scene.photos, &opts, progress)?;
     result.report.photos_skipped = scene.skipped.clone();
     result.report.photos_bad = scene.bad.clone();
     warnings.append(&mut result.report.warnings);

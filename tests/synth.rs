@@ -51,8 +51,19 @@ fn an_unseen_side_gets_texture_not_a_smear() {
         size: AtlasSize::Fixed(1024),
         ..Default::default()
     };
+    opts.synth.keep_patch_map = true;
     let with = common::texture_into(&scene, &opts, &dir.path().join("stage6"));
     let rep = with.report.synth.as_ref().expect("stage 6 ran");
+    // The patch map (synth.png) names a patch for every texel written but the bare ones.
+    let made = with.synthesized.as_ref().unwrap();
+    assert_eq!(made.patches.len() as u64, rep.texels);
+    let bare = made.patches.iter().filter(|p| p.1 == u32::MAX).count() as u64;
+    assert_eq!(bare, rep.texels_low_only);
+    let pic = scantex::synth::picture(&with.resampled, made);
+    let (i, _) = made.patches[made.patches.len() / 2];
+    let px = pic.get_pixel(i % pic.width(), i / pic.width()).0;
+    assert!(px != [110, 110, 110] && px != [50, 50, 50], "{px:?}");
+    opts.synth.keep_patch_map = false;
     assert!(!rep.regions.is_empty(), "{rep:?}");
     // Every handed-over texel was written, nearly all with patch detail.
     let left = with.unrestored.as_ref().unwrap();

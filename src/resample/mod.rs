@@ -140,6 +140,22 @@ pub struct Resampled {
     pub stats: ResampleStats,
 }
 
+/// A saturated colour for index `k` (photograph, patch): hues spaced by the golden angle, 0
+/// red, so neighbouring indices stand apart.
+pub fn index_colour(k: u32) -> [u8; 3] {
+    let hue = (k as f32 * 0.618_034).fract() * 6.0;
+    let f = hue.fract();
+    let (a, b) = ((255.0 * (1.0 - f)) as u8, (255.0 * f) as u8);
+    match hue as u32 {
+        0 => [255, b, 0],
+        1 => [a, 255, 0],
+        2 => [0, 255, b],
+        3 => [0, a, 255],
+        4 => [b, 0, 255],
+        _ => [255, 0, a],
+    }
+}
+
 impl Resampled {
     /// The paper's Fig. 7: texels coloured by their triangle's class (black outside charts).
     pub fn class_picture(&self) -> RgbImage {
@@ -166,17 +182,7 @@ impl Resampled {
             if p == NO_PHOTO {
                 return image::Rgb([0, 0, 0]);
             }
-            let hue = (p as f32 * 0.618_034).fract() * 6.0;
-            let f = hue.fract();
-            let (a, b) = ((255.0 * (1.0 - f)) as u8, (255.0 * f) as u8);
-            image::Rgb(match hue as u32 {
-                0 => [255, b, 0],
-                1 => [a, 255, 0],
-                2 => [0, 255, b],
-                3 => [0, a, 255],
-                4 => [b, 0, 255],
-                _ => [255, 0, a],
-            })
+            image::Rgb(index_colour(u32::from(p)))
         })
     }
 

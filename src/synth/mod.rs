@@ -69,8 +69,12 @@ pub struct SynthOptions {
     /// Exemplar offsets tried per patch; the one agreeing best with the patches already
     /// placed wins. Default: 16.
     pub candidates: usize,
-    /// Random seed (patch order and offsets): the same seed gives the same bytes. Default: 1.
+    /// Random seed (patch order and offsets): the same seed gives the same bytes. Default:
+    /// restoration's ([`crate::restore::RestoreOptions::default`]), as `--seed` sets both.
     pub seed: u64,
+    /// Keep which patch won each texel ([`Synthesized::patches`]), for `--debug-dir`'s
+    /// `synth.png` (8 bytes per texel written). Default: false.
+    pub keep_patch_map: bool,
 }
 
 impl Default for SynthOptions {
@@ -79,7 +83,8 @@ impl Default for SynthOptions {
             exemplar: ExemplarSource::Auto,
             radius: 0.0,
             candidates: 16,
-            seed: 1,
+            seed: crate::restore::RestoreOptions::default().seed,
+            keep_patch_map: false,
         }
     }
 }
@@ -169,6 +174,43 @@ pub struct SynthReport {
     pub seconds: f64,
 }
 
+/// What [`synthesize`] made besides the atlas colours.
+#[derive(Debug, Clone, Default)]
+pub struct Synthesized {
+    /// What it did.
+    pub report: SynthReport,
+    /// With [`SynthOptions::keep_patch_map`]: each texel written (row-major index) and its
+    /// heaviest patch (`u32::MAX` where no patch reached it).
+    pub patches: Vec<(u32, u32)>,
+}
+
+/// Stage 6's picture: each texel it wrote in the colour of its heaviest patch (white where no
+/// patch reached it: low band only), photographed texels grey, other chart texels (restored)
+/// dark grey, black outside the charts.
+pub fn picture(res: &Resampled, made: &Synthesized) -> image::RgbImage {
+    use crate::resample::TexelSource as S;
+    let (w, h) = res.color.dimensions();
+    let mut img = image::RgbImage::from_fn(w, h, |x, y| {
+        let s = res.source[(y * w + x) as usize];
+        image::Rgb(if s == S::Photos as u8 {
+            [110, 110, 110]
+        } else if s == S::Empty as u8 || s == S::Gutter as u8 {
+            [0, 0, 0]
+        } else {
+            [50, 50, 50]
+        })
+    });
+    for &(i, k) in &made.patches {
+        let c = if k == u32::MAX {
+            [255, 255, 255]
+        } else {
+            crate::resample::index_colour(k)
+        };
+        img.put_pixel(i % w, i / w, image::Rgb(c));
+    }
+    img
+}
+
 /// A square crop's detail: the crop minus its Gaussian blur (sigma `sigma`), so it carries
 /// texture, not shading or colour gradients (the low band brings those).
 fn detail(texels: &[[f32; 3]], w: usize, h: usize, sigma: f64) -> Vec<[f32; 3]> {
@@ -221,7 +263,7 @@ pub fn synthesize(
     user: Option<&image::Rgb32FImage>,
     opts: &SynthOptions,
     gutter_fill: u32,
-) -> Result<SynthReport> {
+) -> Result<Synthesized> {
     opts.validate()?;
     let wall = Instant::now();
     let up = if up.norm() > 1e-12 {
@@ -240,7 +282,10 @@ pub fn synthesize(
         ..Default::default()
     };
     if opts.exemplar == ExemplarSource::Off || left.regions.is_empty() {
-        return Ok(report);
+        return Ok(Synthesized {
+            report,
+            ..Default::default()
+        });
     }
     if mesh.num_faces() != atlas.face_chart.len() || normals.len() != mesh.num_vertices() {
         return Err(Error::Internal(
@@ -410,7 +455,7 @@ pub fn synthesize(
     }
     report.seconds_patches = t.elapsed().as_secs_f64();
     t = Instant::now();
-    let (written, bare) = surface::bake(
+    let (written, bare, patch_map) = surface::bake(
         mesh,
         normals,
         atlas,
@@ -422,6 +467,7 @@ pub fn synthesize(
         &face_patches,
         &sources,
         radius,
+        opts.keep_patch_map,
     );
     crate::resample::refill_gutter(res, gutter_fill);
     report.seconds_bake = t.elapsed().as_secs_f64();
@@ -443,5 +489,8 @@ pub fn synthesize(
         })
         .collect();
     report.seconds = wall.elapsed().as_secs_f64();
-    Ok(report)
+    Ok(Synthesized {
+        report,
+        patches: patch_map,
+    })
 }

@@ -304,7 +304,9 @@ pub(super) fn grow_patches(
 ) -> usize {
     let r_world = layout.radius / src.density();
     let reach = 1.2 * r_world;
-    let core = 0.5 * r_world;
+    // Seeds at most 0.7 radius from every point: each texel blends about six patches, and
+    // none has less than a quarter of the centre weight (bump(0.7) = 0.26).
+    let core = 0.7 * r_world;
     let normal = |f: u32| mesh.face_normal_area(FaceId(f));
     // A region's faces hold consecutive slots: `local` indexes this region's scratch.
     let base = faces.first().map_or(0, |&f| slot[f as usize]);
@@ -440,7 +442,8 @@ pub(super) fn grow_patches(
 
 /// Writes stage 6's colour into every unseen texel of a region face: the low band
 /// interpolated from the vertices plus the blended patch detail at the texel's surface point.
-/// Returns (texels written, texels with no patch weight: low band only).
+/// Returns (texels written, texels with no patch weight: low band only) and, with
+/// `record`, the heaviest patch of each texel written (in texel order; `u32::MAX` for none).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn bake(
     mesh: &Mesh,
@@ -454,14 +457,18 @@ pub(super) fn bake(
     face_patches: &[Vec<u32>],
     sources: &[Source],
     radius: f64,
-) -> (u64, u64) {
+    record: bool,
+) -> (u64, u64, Vec<(u32, u32)>) {
     let n = atlas.size as usize;
     let data: &mut [f32] = color.as_mut();
-    let counts: Vec<(u64, u64)> = data
+    // Per row: texels written, texels with the low band only, (texel, heaviest patch).
+    type Row = (u64, u64, Vec<(u32, u32)>);
+    let counts: Vec<Row> = data
         .par_chunks_mut(n * 3)
         .enumerate()
         .map(|(y, row)| {
             let (mut written, mut bare) = (0u64, 0u64);
+            let mut winners = Vec::new();
             let mut near: Vec<(f32, [f32; 3])> = Vec::new();
             for x in 0..n {
                 let i = y * n + x;
@@ -499,6 +506,7 @@ pub(super) fn bake(
                 });
                 near.clear();
                 let mut src_id = u32::MAX;
+                let mut heaviest = (0f32, u32::MAX);
                 for &k in &face_patches[sl as usize] {
                     let q = &patches[k as usize];
                     let s = &sources[q.source as usize];
@@ -510,6 +518,9 @@ pub(super) fn bake(
                     if w > 0.0 {
                         near.push((w, s.ex.sample(q.offset[0] + off.x, q.offset[1] + off.y)));
                         src_id = q.source;
+                        if w > heaviest.0 {
+                            heaviest = (w, k);
+                        }
                     }
                 }
                 let detail = match (blend(near.iter().copied()), src_id) {
@@ -523,9 +534,19 @@ pub(super) fn bake(
                     row[x * 3 + k] = base[k] + detail[k];
                 }
                 written += 1;
+                if record {
+                    winners.push((i as u32, heaviest.1));
+                }
             }
-            (written, bare)
+            (written, bare, winners)
         })
         .collect();
-    counts.iter().fold((0, 0), |a, c| (a.0 + c.0, a.1 + c.1))
+    let mut all = Vec::new();
+    let (mut written, mut bare) = (0, 0);
+    for (w, b, mut list) in counts {
+        written += w;
+        bare += b;
+        all.append(&mut list);
+    }
+    (written, bare, all)
 }
