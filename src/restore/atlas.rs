@@ -12,7 +12,8 @@ use crate::planar::BitMask;
 pub struct Unrestored {
     /// Atlas side in texels.
     pub size: usize,
-    /// Texels of unseen regions larger than `max_hole`: they keep their vertex colours.
+    /// Texels of unseen atlas holes larger than `max_hole`, left for stage 6 (they keep
+    /// their vertex colours when it is off).
     pub too_large: BitMask,
     /// Unseen texels of charts no photograph saw at all: nothing in 2D to restore them from.
     pub unreachable: BitMask,
@@ -142,7 +143,7 @@ pub fn restore_atlas(
     drop(reach);
     // Large unseen regions are exemplar synthesis's (stage 6): pixel-by-pixel synthesis of a
     // region of a million texels is one long sequential walk, and its 2D neighbourhood is the
-    // atlas's, not the surface's. They keep their vertex colours here.
+    // atlas's, not the surface's. They are left here for stage 6.
     let mut left_large = 0u64;
     let mut comps = holes(n, n, &mask);
     if max_hole > 0 {

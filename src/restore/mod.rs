@@ -213,9 +213,9 @@ impl RestoreOptions {
 pub struct RestoreReport {
     /// Texels filled.
     pub texels: u64,
-    /// Atlas: unseen texels in holes larger than the size limit, left with vertex colours.
+    /// Atlas: unseen texels in holes larger than the size limit, left for stage 6.
     pub texels_left_large: u64,
-    /// Atlas: unseen texels in charts with no seen texel, left with vertex colours.
+    /// Atlas: unseen texels in charts with no seen texel, left for stage 6.
     pub texels_left_unreachable: u64,
     /// Atlas: unseen texels of regions deeper than the depth limit, left for stage 6.
     pub texels_left_deep: u64,
