@@ -211,6 +211,72 @@ pub fn picture(res: &Resampled, made: &Synthesized) -> image::RgbImage {
     img
 }
 
+/// Most photographed samples around one region that constrain its patches.
+const RIM_SAMPLES: usize = 20_000;
+
+/// The photographed detail just outside a region: on every face outside it that shares an
+/// edge with it, photographed texels (at most [`RIM_SAMPLES`], evenly strided) as their
+/// surface point and their colour minus the low band there, in `src`'s Gaussian values.
+#[allow(clippy::too_many_arguments)]
+fn rim_detail(
+    mesh: &Mesh,
+    atlas: &Atlas,
+    res: &Resampled,
+    adj: &[[u32; 3]],
+    member: &[bool],
+    faces: &[u32],
+    low: &[[f32; 3]],
+    src: &Source,
+) -> Vec<(nalgebra::Point3<f64>, [f32; 3])> {
+    use crate::resample::TexelSource as S;
+    let mut rim: Vec<u32> = faces
+        .iter()
+        .flat_map(|&f| adj[f as usize])
+        .filter(|&g| g != crate::mesh::topology::NO_FACE && !member[g as usize])
+        .collect();
+    rim.sort_unstable();
+    rim.dedup();
+    let n = atlas.size as usize;
+    let data: &[f32] = res.color.as_raw();
+    let mut texels: Vec<(usize, u32)> = Vec::new();
+    for &f in &rim {
+        let Some(((r0, r1), (c0, c1))) = atlas.face_rect(f as usize) else {
+            continue;
+        };
+        for y in r0..=r1 {
+            for x in c0..=c1 {
+                let i = y * n + x;
+                if atlas.owner(i) == Some(f) && res.source[i] == S::Photos as u8 {
+                    texels.push((i, f));
+                }
+            }
+        }
+    }
+    let step = texels.len().div_ceil(RIM_SAMPLES).max(1);
+    texels
+        .iter()
+        .step_by(step)
+        .filter_map(|&(i, f)| {
+            let b = atlas.barycentric(f as usize, i % n, i / n)?;
+            let b = b.map(|v| v.clamp(0.0, 1.0));
+            let sum = (b[0] + b[1] + b[2]).max(1e-12);
+            let b = b.map(|v| v / sum);
+            let tri = mesh.triangle(FaceId(f));
+            let fv = mesh.faces[f as usize];
+            let p = nalgebra::Point3::from(
+                tri[0].coords * b[0] + tri[1].coords * b[1] + tri[2].coords * b[2],
+            );
+            let obs: [f32; 3] = std::array::from_fn(|k| {
+                let l = low[fv[0].idx()][k] * b[0] as f32
+                    + low[fv[1].idx()][k] * b[1] as f32
+                    + low[fv[2].idx()][k] * b[2] as f32;
+                data[i * 3 + k] - l
+            });
+            Some((p, src.ex.gaussianise(obs)))
+        })
+        .collect()
+}
+
 /// A square crop's detail: the crop minus its Gaussian blur (sigma `sigma`), so it carries
 /// texture, not shading or colour gradients (the low band brings those).
 fn detail(texels: &[[f32; 3]], w: usize, h: usize, sigma: f64) -> Vec<[f32; 3]> {
@@ -435,6 +501,7 @@ pub fn synthesize(
                     radius,
                     candidates: opts.candidates,
                 };
+                let rim = rim_detail(mesh, atlas, res, &adj, &member, &r.faces, &low, s);
                 surface::grow_patches(
                     mesh,
                     &adj,
@@ -445,6 +512,7 @@ pub fn synthesize(
                     &up,
                     &layout,
                     &mut rng,
+                    &rim,
                     &mut patches,
                     &mut face_patches,
                 )

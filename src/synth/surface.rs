@@ -299,10 +299,25 @@ pub(super) fn grow_patches(
     up: &Vector3<f64>,
     layout: &Layout,
     rng: &mut SplitMix64,
+    rim: &[(Point3<f64>, [f32; 3])],
     patches: &mut Vec<Patch>,
     face_patches: &mut [Vec<u32>],
 ) -> usize {
     let r_world = layout.radius / src.density();
+    // The photographed detail around the region, bucketed by position: patches near the rim
+    // choose their offset to continue it.
+    let cell = r_world.max(1e-12);
+    let key = |p: &Point3<f64>| {
+        [
+            (p.x / cell).floor() as i64,
+            (p.y / cell).floor() as i64,
+            (p.z / cell).floor() as i64,
+        ]
+    };
+    let mut buckets: std::collections::HashMap<[i64; 3], Vec<u32>> = Default::default();
+    for (i, (p, _)) in rim.iter().enumerate() {
+        buckets.entry(key(p)).or_default().push(i as u32);
+    }
     let reach = 1.2 * r_world;
     // Seeds at most 0.7 radius from every point: each texel blends about six patches, and
     // none has less than a quarter of the centre weight (bump(0.7) = 0.26).
@@ -422,6 +437,26 @@ pub(super) fn grow_patches(
                     let g = src.ex.sample(q.offset[0] + off.x, q.offset[1] + off.y);
                     cons.push(([here.x, here.y], g));
                 }
+            }
+        }
+        let k0 = key(&origin);
+        let mut near_rim = Vec::new();
+        for dz in -1..=1 {
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    if let Some(b) = buckets.get(&[k0[0] + dx, k0[1] + dy, k0[2] + dz]) {
+                        near_rim.extend(b.iter().copied());
+                    }
+                }
+            }
+        }
+        near_rim.sort_unstable();
+        let step = (near_rim.len() / 48).max(1);
+        for &i in near_rim.iter().step_by(step) {
+            let (p, g) = &rim[i as usize];
+            let here = src.m * patch.coords(p);
+            if here.norm() <= 0.8 * layout.radius && (p - origin).dot(&n).abs() < 0.5 * r_world {
+                cons.push(([here.x, here.y], *g));
             }
         }
         patch.offset = choose_offset(&src.ex, layout.radius, layout.candidates, rng, &cons);
