@@ -393,6 +393,26 @@ pub fn texture(
             "the scene has no registered photographs to texture from".into(),
         ));
     }
+    // The user's exemplar is read before any work, so a bad file stops the run at once.
+    let user = match &opts.synth.exemplar {
+        ExemplarSource::File(p) => {
+            let img = io::image::read_rgb32f(p)?;
+            let min = synth::MIN_EXEMPLAR_SIDE;
+            if img.width() < min || img.height() < min {
+                return Err(Error::parse(
+                    p,
+                    crate::Location::File,
+                    format!(
+                        "the exemplar is {}x{} pixels: stage 6 needs at least {min}x{min}",
+                        img.width(),
+                        img.height()
+                    ),
+                ));
+            }
+            Some(img)
+        }
+        _ => None,
+    };
     let mut stages = Vec::new();
     let wall = Instant::now();
     let mut atlas_opts = opts.atlas;
@@ -513,10 +533,6 @@ pub fn texture(
     let synth = match (&unrestored, &opts.synth.exemplar) {
         (Some(left), e) if *e != ExemplarSource::Off && !left.regions.is_empty() => {
             progress.start("synth", 1);
-            let user = match e {
-                ExemplarSource::File(p) => Some(io::image::read_rgb32f(p)?),
-                _ => None,
-            };
             let r = synth::synthesize(
                 &m,
                 &normals,

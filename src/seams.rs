@@ -118,7 +118,11 @@ pub fn seam_visibility(
             }
             t
         })
-        .reduce(|| [0f64; 6], |a, b| std::array::from_fn(|k| a[k] + b[k]));
+        .collect::<Vec<[f64; 6]>>()
+        // Summed in row order: rayon's reduce groups rows by how work was stolen, and float
+        // addition in another grouping moved the last digits of report.json under load.
+        .iter()
+        .fold([0f64; 6], |a, b| std::array::from_fn(|k| a[k] + b[k]));
     let [across, n_across, within, n_within, local, flank] = sums;
     let view_boundary_ratio_global = if n_across > 0.0 && within > 0.0 {
         (across / n_across) / (within / n_within)

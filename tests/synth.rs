@@ -195,3 +195,38 @@ fn cli_synth_makes_an_image_of_the_size_asked_and_refuses_bad_sizes() {
     ]);
     assert!(!ok && err.contains("missing.png"), "{err}");
 }
+
+#[test]
+fn cli_texture_refuses_a_bad_exemplar_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let tiny = dir.path().join("tiny.png");
+    image::RgbImage::from_pixel(4, 4, image::Rgb([90, 90, 90]))
+        .save(&tiny)
+        .unwrap();
+    let missing = dir.path().join("missing.png");
+    let cases: [(Vec<String>, &str); 3] = [
+        (
+            vec!["--exemplar".into(), missing.display().to_string()],
+            "missing.png",
+        ),
+        (vec!["--exemplar".into(), tiny.display().to_string()], "4x4"),
+        (vec!["--synth-radius".into(), "2".into()], "synth-radius"),
+    ];
+    for (args, expect) in cases {
+        let out = dir.path().join("out");
+        let o = Command::new(env!("CARGO_BIN_EXE_scantex"))
+            .args(["texture", "-q", "--size", "512"])
+            .args(&args)
+            .arg(common::root().join("samples/torus"))
+            .arg("-o")
+            .arg(&out)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            !o.status.success() && err.contains(expect),
+            "{args:?}: {err}"
+        );
+        assert!(!out.join("model.obj").exists(), "{args:?} left an output");
+    }
+}

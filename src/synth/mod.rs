@@ -89,6 +89,10 @@ impl Default for SynthOptions {
     }
 }
 
+/// The smallest exemplar image side stage 6 takes, pixels (a patch of the smallest radius
+/// fits).
+pub const MIN_EXEMPLAR_SIDE: u32 = 16;
+
 /// Patch radii `radius` may take, texels (0 = automatic).
 pub const RADIUS_RANGE: std::ops::RangeInclusive<f64> = 0.0..=512.0;
 
@@ -352,6 +356,11 @@ pub fn synthesize(
             report,
             ..Default::default()
         });
+    }
+    if matches!(opts.exemplar, ExemplarSource::File(_)) != user.is_some() {
+        return Err(Error::Internal(
+            "stage 6 needs the exemplar image exactly when an exemplar file is chosen".into(),
+        ));
     }
     if mesh.num_faces() != atlas.face_chart.len() || normals.len() != mesh.num_vertices() {
         return Err(Error::Internal(
