@@ -4,6 +4,7 @@
 //! and completeness (footprint pixels the texture actually covers).
 
 use crate::error::Result;
+use crate::planar::luma;
 use crate::raycast::RayMesh;
 use crate::render::{render, RenderOptions, Texture};
 use crate::scene::Photo;
@@ -73,9 +74,32 @@ pub struct EvalReport {
     pub mean: Option<ImageScore>,
 }
 
-/// Rec. 601 luma of an RGB pixel.
-fn luma(p: &[f32; 3]) -> f64 {
-    0.299 * p[0] as f64 + 0.587 * p[1] as f64 + 0.114 * p[2] as f64
+/// With `opts.gain_fit`, per channel the least-squares gain taking `rendered` to `photo` over
+/// `region` (255 = use); otherwise, or with no pixel to fit on, 1.
+fn fit_gains(
+    rendered: &Rgb32FImage,
+    photo: &Rgb32FImage,
+    region: &GrayImage,
+    opts: &EvalOptions,
+) -> [f64; 3] {
+    let mut gains = [1.0f64; 3];
+    if !opts.gain_fit {
+        return gains;
+    }
+    for (k, g) in gains.iter_mut().enumerate() {
+        let (mut num, mut den) = (0.0, 0.0);
+        for (x, y, p) in photo.enumerate_pixels() {
+            if region.get_pixel(x, y)[0] > 127 {
+                let r = rendered.get_pixel(x, y)[k] as f64;
+                num += p[k] as f64 * r;
+                den += r * r;
+            }
+        }
+        if den > 0.0 {
+            *g = num / den;
+        }
+    }
+    gains
 }
 
 /// Compares `rendered` to `photo` inside `region` (255 = compare). `covered` says where the
@@ -92,22 +116,7 @@ pub fn compare(
     let (w, h) = photo.dimensions();
     let inside = |x: u32, y: u32| region.get_pixel(x, y)[0] > 127;
     let pixels = region.pixels().filter(|p| p[0] > 127).count();
-    let mut gains = [1.0f64; 3];
-    if opts.gain_fit && pixels > 0 {
-        for (k, g) in gains.iter_mut().enumerate() {
-            let (mut num, mut den) = (0.0, 0.0);
-            for (x, y, p) in photo.enumerate_pixels() {
-                if inside(x, y) {
-                    let r = rendered.get_pixel(x, y)[k] as f64;
-                    num += p[k] as f64 * r;
-                    den += r * r;
-                }
-            }
-            if den > 0.0 {
-                *g = num / den;
-            }
-        }
-    }
+    let gains = fit_gains(rendered, photo, region, opts);
     // The rendering with gains applied, and the photo's own values outside the region, so
     // that windows straddling the region border compare only what is inside.
     let r = Rgb32FImage::from_fn(w, h, |x, y| {
@@ -493,16 +502,7 @@ pub fn evaluate(
                 let keep = region.get_pixel(x, y)[0] > 127 && u.get_pixel(x, y)[0] <= 127;
                 image::Luma([if keep { 255 } else { 0 }])
             });
-            let g = compare(
-                &photo.name,
-                &r.color,
-                &img,
-                &seen_region,
-                &covered,
-                &footprint,
-                opts,
-            )
-            .gains;
+            let g = fit_gains(&r.color, &img, &seen_region, opts);
             let gained = Rgb32FImage::from_fn(w, h, |x, y| {
                 let p = r.color.get_pixel(x, y);
                 image::Rgb(std::array::from_fn(|k| (p[k] as f64 * g[k]) as f32))

@@ -327,8 +327,8 @@ pub struct Textured {
     pub resampled: Resampled,
     /// The unseen texels restoration left (none restored when restoration is off).
     pub unrestored: Option<restore::Unrestored>,
-    /// What stage 6 made (its report, and the patch map when kept), if it ran.
-    pub synthesized: Option<synth::Synthesized>,
+    /// Stage 6's patch map ([`synth::Synthesized::patches`]; empty unless kept), if it ran.
+    pub patch_map: Option<Vec<(u32, u32)>>,
     /// What happened.
     pub report: TextureReport,
 }
@@ -550,8 +550,8 @@ pub fn texture(
         }
         _ => None,
     };
-    let (synth, synthesized) = match synth {
-        Some(made) => (Some(made.report.clone()), Some(made)),
+    let (synth, patch_map) = match synth {
+        Some(made) => (Some(made.report), Some(made.patches)),
         None => (None, None),
     };
     let seams = seam_visibility(
@@ -599,7 +599,7 @@ pub fn texture(
         mesh: m,
         resampled,
         unrestored,
-        synthesized,
+        patch_map,
         report,
     })
 }
@@ -681,7 +681,7 @@ fn write_staged(
         .into_iter()
         .chain(
             result
-                .synthesized
+                .patch_map
                 .as_ref()
                 .map(|m| ("synth.png", synth::picture(r, m))),
         ) {

@@ -15,6 +15,12 @@ pub struct Image {
     pub data: Vec<f32>,
 }
 
+/// Rec. 601 luma of an RGB value (the weights held-out evaluation and stage 6 measure
+/// detail with).
+pub fn luma(p: &[f32; 3]) -> f64 {
+    0.299 * p[0] as f64 + 0.587 * p[1] as f64 + 0.114 * p[2] as f64
+}
+
 /// One bit per element (texel), row-major: the masks stages hand forward.
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub struct BitMask {

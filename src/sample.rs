@@ -468,21 +468,15 @@ pub fn generate(
             .map_err(|e| Error::Internal(format!("JPEG encoding in memory: {e}")))?;
         io::write_atomic(&root.join("images").join(name), &bytes)?;
         let mask_name = Path::new(name).with_extension("png");
-        let mut png = Vec::new();
-        r.coverage
-            .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
-            .map_err(|e| Error::Internal(format!("PNG encoding in memory: {e}")))?;
-        io::write_atomic(&root.join("masks").join(&mask_name), &png)?;
+        let png = io::image::encode_png(&DynamicImage::ImageLuma8(r.coverage))?;
+        io::write_atomic(&root.join("masks").join(&mask_name), &png.bytes)?;
         if *heldout && opts.unseen_sector > 0.0 {
             let inputs: Vec<&PosedCamera> = views.iter().filter(|v| !v.3).map(|v| &v.1).collect();
             let unseen = unseen_mask(&ray_mesh, truth, view, &inputs, radius);
-            let mut png = Vec::new();
-            unseen
-                .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
-                .map_err(|e| Error::Internal(format!("PNG encoding in memory: {e}")))?;
+            let png = io::image::encode_png(&DynamicImage::ImageLuma8(unseen))?;
             let dir = root.join("unseen");
             std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
-            io::write_atomic(&dir.join(&mask_name), &png)?;
+            io::write_atomic(&dir.join(&mask_name), &png.bytes)?;
         }
         lighting.insert(name.clone(), *light);
     }

@@ -55,12 +55,12 @@ fn an_unseen_side_gets_texture_not_a_smear() {
     let with = common::texture_into(&scene, &opts, &dir.path().join("stage6"));
     let rep = with.report.synth.as_ref().expect("stage 6 ran");
     // The patch map (synth.png) names a patch for every texel written but the bare ones.
-    let made = with.synthesized.as_ref().unwrap();
-    assert_eq!(made.patches.len() as u64, rep.texels);
-    let bare = made.patches.iter().filter(|p| p.1 == u32::MAX).count() as u64;
+    let patches = with.patch_map.as_ref().unwrap();
+    assert_eq!(patches.len() as u64, rep.texels);
+    let bare = patches.iter().filter(|p| p.1 == u32::MAX).count() as u64;
     assert_eq!(bare, rep.texels_low_only);
-    let pic = scantex::synth::picture(&with.resampled, made);
-    let (i, _) = made.patches[made.patches.len() / 2];
+    let pic = scantex::synth::picture(&with.resampled, patches);
+    let (i, _) = patches[patches.len() / 2];
     let px = pic.get_pixel(i % pic.width(), i / pic.width()).0;
     assert!(px != [110, 110, 110] && px != [50, 50, 50], "{px:?}");
     opts.synth.keep_patch_map = false;

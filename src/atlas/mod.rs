@@ -277,6 +277,21 @@ impl Atlas {
         self.texels.faces[f].as_ref().map(|r| r.texel_len)
     }
 
+    /// Texels per unit of surface length on the page: the median over the faces on it (1 when
+    /// none is).
+    pub fn texels_per_unit(&self) -> f64 {
+        let mut d: Vec<f64> = (0..self.face_chart.len())
+            .filter_map(|f| self.texel_length(f))
+            .map(|l| 1.0 / l)
+            .filter(|v| v.is_finite() && *v > 0.0)
+            .collect();
+        if d.is_empty() {
+            return 1.0;
+        }
+        let mid = d.len() / 2;
+        *d.select_nth_unstable_by(mid, f64::total_cmp).1
+    }
+
     /// Corners of face `f` in texel coordinates (x right, y down), if `f` lies on the page.
     pub fn face_texels(&self, f: usize) -> Option<[nalgebra::Vector2<f64>; 3]> {
         self.texels.faces[f].as_ref().map(|r| r.t)

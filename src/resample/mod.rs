@@ -70,6 +70,16 @@ pub enum TexelSource {
     Gutter = 5,
 }
 
+impl TexelSource {
+    /// Whether a texel of this source (as stored in [`Resampled::source`]) lies in a chart but
+    /// took its colour from no photograph: green fallback, blue or red triangles.
+    pub fn is_unseen(s: u8) -> bool {
+        s == TexelSource::GreenFallback as u8
+            || s == TexelSource::Blue as u8
+            || s == TexelSource::Red as u8
+    }
+}
+
 /// Options for [`resample`] beyond the binding's (method, weights, depth maps).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ResampleOptions {

@@ -38,7 +38,7 @@ pub fn picture(res: &crate::resample::Resampled, left: Option<&Unrestored>) -> i
         let s = res.source[i];
         image::Rgb(if s == S::Photos as u8 {
             [110, 110, 110]
-        } else if s == S::GreenFallback as u8 || s == S::Blue as u8 || s == S::Red as u8 {
+        } else if S::is_unseen(s) {
             match left {
                 Some(l) if l.deep.get(i) => [60, 120, 230],
                 Some(l) if l.too_large.get(i) => [220, 40, 200],
@@ -88,7 +88,7 @@ pub fn restore_atlas(
     use crate::resample::TexelSource as S;
     let max_hole = handing.max_hole;
     let n = res.color.width() as usize;
-    let unseen = |s: u8| s == S::GreenFallback as u8 || s == S::Blue as u8 || s == S::Red as u8;
+    let unseen = S::is_unseen;
     let mut domain: Vec<bool> = res
         .source
         .iter()
@@ -96,11 +96,27 @@ pub fn restore_atlas(
         .collect();
     let any_unseen = res.source.iter().any(|&s| unseen(s));
     let feature_scale = regions::feature_scale(&res.color, &res.source);
+    // Face adjacency and per-face texel counts, for the regions (only with unseen texels).
+    let topo = any_unseen.then(|| {
+        (
+            crate::mesh::topology::face_adjacency(mesh),
+            regions::face_counts(atlas, &res.source, mesh.num_faces()),
+        )
+    });
     // Deep regions first: they leave the domain, so no hole reads their vertex colours.
     let mut deep_mask = BitMask::new(n * n);
-    let (deep, adj) = if any_unseen && handing.min_depth.is_finite() {
-        let (deep, adj) =
-            regions::deep_regions(mesh, atlas, &res.source, feature_scale, handing.min_depth);
+    let deep = match &topo {
+        Some((adj, (hidden, seen))) if handing.min_depth.is_finite() => regions::deep_regions(
+            mesh,
+            atlas,
+            adj,
+            (hidden, seen),
+            feature_scale,
+            handing.min_depth,
+        ),
+        _ => Vec::new(),
+    };
+    if !deep.is_empty() {
         let mut is_deep = vec![false; mesh.num_faces()];
         for r in &deep {
             for &f in &r.faces {
@@ -113,10 +129,7 @@ pub fn restore_atlas(
                 *d = false;
             }
         }
-        (deep, Some(adj))
-    } else {
-        (Vec::new(), None)
-    };
+    }
     // Charts no photograph saw at all have nothing to restore from in 2D: their vertex colours
     // (continuous across seams, from the 3D neighbourhood) stay. Charts are separate domain
     // components (gutter lies between them), so "reachable from a seen texel" is "in a chart
@@ -274,13 +287,16 @@ pub fn restore_atlas(
     report.texels_left_unreachable = texels_left_unreachable;
     report.texels_left_deep = left.deep.count() as u64;
     report.feature_scale = feature_scale;
-    if left.deep.count() + left.too_large.count() + left.unreachable.count() > 0 {
-        let adj = adj.unwrap_or_else(|| crate::mesh::topology::face_adjacency(mesh));
+    // Texels left imply unseen texels, so the topology is there.
+    if let Some((adj, (hidden, _))) = topo
+        .as_ref()
+        .filter(|_| left.deep.count() + left.too_large.count() + left.unreachable.count() > 0)
+    {
         left.regions = regions::handed_over(
             mesh,
             atlas,
-            &adj,
-            &res.source,
+            adj,
+            hidden,
             &deep,
             &left.too_large,
             &left.unreachable,

@@ -11,7 +11,7 @@ mod regions;
 mod synth;
 
 pub use atlas::{picture, restore_atlas, Handing, Unrestored};
-pub use regions::{feature_scale, texels_per_unit, Handover, UnseenRegion};
+pub use regions::{feature_scale, Handover, UnseenRegion};
 pub use synth::LevelStats;
 
 use crate::error::{Error, Result};

@@ -4,7 +4,7 @@
 //! synthesis (stage 6) as faces, with the reason.
 
 use crate::atlas::Atlas;
-use crate::mesh::topology::{face_adjacency, NO_FACE};
+use crate::mesh::topology::NO_FACE;
 use crate::mesh::{FaceId, Mesh};
 use crate::resample::TexelSource;
 use serde::Serialize;
@@ -12,7 +12,7 @@ use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 
 /// Why restoration handed a region to stage 6.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Handover {
     /// Deeper than the depth limit (feature scales from the rim).
@@ -33,15 +33,9 @@ pub struct UnseenRegion {
     /// Largest distance on the surface from the region's rim, texels (infinite when no
     /// photograph saw any face around it).
     pub depth_texels: f64,
-    /// Why it was handed over (the first reason that applies, in the order of [`Handover`]).
+    /// Why it was handed over (the first reason that applies, in the order of [`Handover`]:
+    /// the least).
     pub reason: Handover,
-}
-
-/// Whether a texel's colour came from no photograph.
-fn unseen(s: u8) -> bool {
-    s == TexelSource::GreenFallback as u8
-        || s == TexelSource::Blue as u8
-        || s == TexelSource::Red as u8
 }
 
 /// The texture's feature scale, texels: the smallest lag at which the autocorrelation of the
@@ -51,10 +45,7 @@ pub fn feature_scale(color: &image::Rgb32FImage, source: &[u8]) -> f64 {
     let n = color.width() as usize;
     const HALF: usize = 8;
     const MAX_LAG: usize = 16;
-    let luma = |x: usize, y: usize| {
-        let p = color.get_pixel(x as u32, y as u32);
-        0.299 * p[0] as f64 + 0.587 * p[1] as f64 + 0.114 * p[2] as f64
-    };
+    let luma = |x: usize, y: usize| crate::planar::luma(&color.get_pixel(x as u32, y as u32).0);
     let mut num = [0f64; MAX_LAG + 1];
     let (mut e0, mut e1) = ([0f64; MAX_LAG + 1], [0f64; MAX_LAG + 1]);
     let stride = (n / 512).max(1);
@@ -111,26 +102,12 @@ pub(super) fn face_counts(atlas: &Atlas, source: &[u8], faces: usize) -> (Vec<u3
         if let Some(f) = atlas.owner(i) {
             if s == TexelSource::Photos as u8 {
                 seen[f as usize] += 1;
-            } else if unseen(s) {
+            } else if TexelSource::is_unseen(s) {
                 hidden[f as usize] += 1;
             }
         }
     }
     (hidden, seen)
-}
-
-/// Texels per unit of surface length on the page: the median over faces on it.
-pub fn texels_per_unit(atlas: &Atlas) -> f64 {
-    let mut d: Vec<f64> = (0..atlas.face_chart.len())
-        .filter_map(|f| atlas.texel_length(f))
-        .map(|l| 1.0 / l)
-        .filter(|v| v.is_finite() && *v > 0.0)
-        .collect();
-    if d.is_empty() {
-        return 1.0;
-    }
-    let mid = d.len() / 2;
-    *d.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 /// Connected components (through shared edges) of the faces `member` marks, each with its
@@ -171,7 +148,7 @@ pub(super) fn components(mesh: &Mesh, adj: &[[u32; 3]], member: &[bool]) -> Vec<
                 .any(|&g| g != NO_FACE && !member[g as usize]);
             if rim {
                 dist[f as usize] = 0.0;
-                heap.push(Reverse((ordered(0.0), f)));
+                heap.push(Reverse((Ordered(0.0), f)));
             }
         }
         let mut depth = if heap.is_empty() { f64::INFINITY } else { 0.0 };
@@ -189,7 +166,7 @@ pub(super) fn components(mesh: &Mesh, adj: &[[u32; 3]], member: &[bool]) -> Vec<
                 let nd = d + (centroid(g) - c).norm();
                 if nd < dist[g as usize] {
                     dist[g as usize] = nd;
-                    heap.push(Reverse((ordered(nd), g)));
+                    heap.push(Reverse((Ordered(nd), g)));
                 }
             }
         }
@@ -212,24 +189,21 @@ impl Ord for Ordered {
         self.0.total_cmp(&o.0)
     }
 }
-fn ordered(x: f64) -> Ordered {
-    Ordered(x)
-}
 
-/// The regions of faces no photograph saw whose depth from the rim is at least `min_depth`
-/// feature scales (`scale` texels each), and the face adjacency used.
+/// The regions of faces no photograph saw (per face: `hidden` and `seen` texels, from
+/// [`face_counts`]) whose depth from the rim is at least `min_depth` feature scales (`scale`
+/// texels each).
 pub(super) fn deep_regions(
     mesh: &Mesh,
     atlas: &Atlas,
-    source: &[u8],
+    adj: &[[u32; 3]],
+    (hidden, seen): (&[u32], &[u32]),
     scale: f64,
     min_depth: f64,
-) -> (Vec<UnseenRegion>, Vec<[u32; 3]>) {
-    let adj = face_adjacency(mesh);
-    let (hidden, seen) = face_counts(atlas, source, mesh.num_faces());
-    let member: Vec<bool> = (0..mesh.num_faces()).map(|f| seen[f] == 0).collect();
-    let tpu = texels_per_unit(atlas);
-    let regions = components(mesh, &adj, &member)
+) -> Vec<UnseenRegion> {
+    let member: Vec<bool> = seen.iter().map(|&s| s == 0).collect();
+    let tpu = atlas.texels_per_unit();
+    components(mesh, adj, &member)
         .into_iter()
         .filter_map(|(faces, depth)| {
             let depth_texels = depth * tpu;
@@ -240,17 +214,17 @@ pub(super) fn deep_regions(
                 reason: Handover::Deep,
             })
         })
-        .collect();
-    (regions, adj)
+        .collect()
 }
 
 /// Every region for stage 6: the deep regions and the faces owning texels restoration left
 /// (`left`), joined where they touch; the reason is the deep one if any face was deep.
+/// `hidden`: unseen texels per face ([`face_counts`]).
 pub(super) fn handed_over(
     mesh: &Mesh,
     atlas: &Atlas,
     adj: &[[u32; 3]],
-    source: &[u8],
+    hidden: &[u32],
     deep: &[UnseenRegion],
     left_too_large: &crate::planar::BitMask,
     left_unreachable: &crate::planar::BitMask,
@@ -262,7 +236,7 @@ pub(super) fn handed_over(
             why[f as usize] = Some(Handover::Deep);
         }
     }
-    for i in 0..source.len() {
+    for i in 0..left_too_large.len() {
         let reason = if left_too_large.get(i) {
             Handover::TooLarge
         } else if left_unreachable.get(i) {
@@ -272,15 +246,11 @@ pub(super) fn handed_over(
         };
         if let Some(f) = atlas.owner(i) {
             let w = &mut why[f as usize];
-            *w = Some(match *w {
-                Some(old) => min_reason(old, reason),
-                None => reason,
-            });
+            *w = Some(w.map_or(reason, |old| old.min(reason)));
         }
     }
     let member: Vec<bool> = why.iter().map(|w| w.is_some()).collect();
-    let (hidden, _) = face_counts(atlas, source, nf);
-    let tpu = texels_per_unit(atlas);
+    let tpu = atlas.texels_per_unit();
     components(mesh, adj, &member)
         .into_iter()
         .map(|(faces, depth)| UnseenRegion {
@@ -288,7 +258,7 @@ pub(super) fn handed_over(
             reason: faces
                 .iter()
                 .filter_map(|&f| why[f as usize])
-                .reduce(min_reason)
+                .min()
                 .unwrap_or(Handover::Deep),
             depth_texels: depth * tpu,
             faces,
@@ -296,22 +266,10 @@ pub(super) fn handed_over(
         .collect()
 }
 
-fn min_reason(a: Handover, b: Handover) -> Handover {
-    let rank = |h: Handover| match h {
-        Handover::Deep => 0,
-        Handover::TooLarge => 1,
-        Handover::Unreachable => 2,
-    };
-    if rank(a) <= rank(b) {
-        a
-    } else {
-        b
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::mesh::topology::face_adjacency;
 
     /// Sinusoidal stripes of period 24 along the rows: the detail's autocorrelation is
     /// cos(2 pi d / 24), below one half from d = 5 on; a flat atlas has no detail (4).

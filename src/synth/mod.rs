@@ -191,7 +191,7 @@ pub struct Synthesized {
 /// Stage 6's picture: each texel it wrote in the colour of its heaviest patch (white where no
 /// patch reached it: low band only), photographed texels grey, other chart texels (restored)
 /// dark grey, black outside the charts.
-pub fn picture(res: &Resampled, made: &Synthesized) -> image::RgbImage {
+pub fn picture(res: &Resampled, patches: &[(u32, u32)]) -> image::RgbImage {
     use crate::resample::TexelSource as S;
     let (w, h) = res.color.dimensions();
     let mut img = image::RgbImage::from_fn(w, h, |x, y| {
@@ -204,7 +204,7 @@ pub fn picture(res: &Resampled, made: &Synthesized) -> image::RgbImage {
             [50, 50, 50]
         })
     });
-    for &(i, k) in &made.patches {
+    for &(i, k) in patches {
         let c = if k == u32::MAX {
             [255, 255, 255]
         } else {
@@ -218,21 +218,9 @@ pub fn picture(res: &Resampled, made: &Synthesized) -> image::RgbImage {
 /// Most photographed samples around one region that constrain its patches.
 const RIM_SAMPLES: usize = 20_000;
 
-/// The photographed detail just outside a region: on every face outside it that shares an
-/// edge with it, photographed texels (at most [`RIM_SAMPLES`], evenly strided) as their
-/// surface point and their colour minus the low band there, in `src`'s Gaussian values.
-#[allow(clippy::too_many_arguments)]
-fn rim_detail(
-    mesh: &Mesh,
-    atlas: &Atlas,
-    res: &Resampled,
-    adj: &[[u32; 3]],
-    member: &[bool],
-    faces: &[u32],
-    low: &[[f32; 3]],
-    src: &Source,
-) -> Vec<(nalgebra::Point3<f64>, [f32; 3])> {
-    use crate::resample::TexelSource as S;
+/// The faces outside a region (`member` marks every region's faces) sharing an edge with it,
+/// in index order.
+fn rim_faces(adj: &[[u32; 3]], member: &[bool], faces: &[u32]) -> Vec<u32> {
     let mut rim: Vec<u32> = faces
         .iter()
         .flat_map(|&f| adj[f as usize])
@@ -240,42 +228,30 @@ fn rim_detail(
         .collect();
     rim.sort_unstable();
     rim.dedup();
+    rim
+}
+
+/// The photographed detail just outside a region: of its rim faces' photographed `texels`
+/// (from [`pick::photographed_texels`]; at most [`RIM_SAMPLES`], evenly strided), the surface
+/// point and the colour minus the low band there, in `src`'s Gaussian values.
+fn rim_detail(
+    mesh: &Mesh,
+    atlas: &Atlas,
+    res: &Resampled,
+    texels: &[(usize, u32)],
+    low: &[[f32; 3]],
+    src: &Source,
+) -> Vec<(nalgebra::Point3<f64>, [f32; 3])> {
     let n = atlas.size as usize;
     let data: &[f32] = res.color.as_raw();
-    let mut texels: Vec<(usize, u32)> = Vec::new();
-    for &f in &rim {
-        let Some(((r0, r1), (c0, c1))) = atlas.face_rect(f as usize) else {
-            continue;
-        };
-        for y in r0..=r1 {
-            for x in c0..=c1 {
-                let i = y * n + x;
-                if atlas.owner(i) == Some(f) && res.source[i] == S::Photos as u8 {
-                    texels.push((i, f));
-                }
-            }
-        }
-    }
     let step = texels.len().div_ceil(RIM_SAMPLES).max(1);
     texels
         .iter()
         .step_by(step)
         .filter_map(|&(i, f)| {
-            let b = atlas.barycentric(f as usize, i % n, i / n)?;
-            let b = b.map(|v| v.clamp(0.0, 1.0));
-            let sum = (b[0] + b[1] + b[2]).max(1e-12);
-            let b = b.map(|v| v / sum);
-            let tri = mesh.triangle(FaceId(f));
-            let fv = mesh.faces[f as usize];
-            let p = nalgebra::Point3::from(
-                tri[0].coords * b[0] + tri[1].coords * b[1] + tri[2].coords * b[2],
-            );
-            let obs: [f32; 3] = std::array::from_fn(|k| {
-                let l = low[fv[0].idx()][k] * b[0] as f32
-                    + low[fv[1].idx()][k] * b[1] as f32
-                    + low[fv[2].idx()][k] * b[2] as f32;
-                data[i * 3 + k] - l
-            });
+            let (b, p) = surface::texel_point(mesh, atlas, f, i % n, i / n)?;
+            let l = surface::at_bary(low, &mesh.faces[f as usize], &b);
+            let obs: [f32; 3] = std::array::from_fn(|k| data[i * 3 + k] - l[k]);
             Some((p, src.ex.gaussianise(obs)))
         })
         .collect()
@@ -383,13 +359,19 @@ pub fn synthesize(
     report.seconds_low_band = t.elapsed().as_secs_f64();
     t = Instant::now();
     // Exemplars: the user's, or per region the atlas crop most like its rim.
-    let tpu = crate::restore::texels_per_unit(atlas);
+    let tpu = atlas.texels_per_unit();
     let (lo, hi) = mesh.bounding_box();
     let object_radius = (hi - lo).norm() / 2.0;
     let sigma = radius / 4.0;
     let mut sources: Vec<Source> = Vec::new();
     let adj = crate::mesh::topology::face_adjacency(mesh);
     let mut used: Vec<(ExemplarUsed, Option<u32>)> = Vec::with_capacity(left.regions.len());
+    // Each region's photographed texels around its rim: its exemplar's look and constraints.
+    let rims: Vec<Vec<(usize, u32)>> = left
+        .regions
+        .iter()
+        .map(|r| pick::photographed_texels(atlas, &res.source, &rim_faces(&adj, &member, &r.faces)))
+        .collect();
     if let Some(img) = user {
         let (w, h) = (img.width() as usize, img.height() as usize);
         let texels: Vec<[f32; 3]> = img.pixels().map(|p| p.0).collect();
@@ -407,7 +389,7 @@ pub fn synthesize(
             cands = pick::candidates(mesh, atlas, &res.color, &res.source, &up, side / 2, lag);
         }
         let mut chosen: Vec<(usize, usize, usize)> = Vec::new();
-        for r in &left.regions {
+        for (r, rim) in left.regions.iter().zip(&rims) {
             let (mut colour, mut cnt) = ([0f64; 3], 0.0f64);
             let mut centre = Vector3::zeros();
             let (mut facing, mut area) = (0.0, 0.0);
@@ -438,17 +420,8 @@ pub fn synthesize(
                     cnt += 1.0;
                 }
             }
-            // The photographed faces around the region.
-            let mut rim_faces: Vec<u32> = r
-                .faces
-                .iter()
-                .flat_map(|&f| adj[f as usize])
-                .filter(|&g| g != crate::mesh::topology::NO_FACE && !member[g as usize])
-                .collect();
-            rim_faces.sort_unstable();
-            rim_faces.dedup();
             let look = pick::RimLook {
-                detail: pick::faces_detail(atlas, &res.color, &res.source, &rim_faces, lag),
+                detail: pick::texels_detail(atlas, &res.color, &res.source, rim, lag),
                 colour: colour.map(|c| (c / cnt.max(1.0)) as f32),
                 facing_up: facing / area.max(1e-300),
                 centre: nalgebra::Point3::from(centre / cnt.max(1.0)),
@@ -502,7 +475,7 @@ pub fn synthesize(
     let mut patches = Vec::new();
     let mut face_patches: Vec<Vec<u32>> = vec![Vec::new(); count as usize];
     let mut per_region = Vec::with_capacity(left.regions.len());
-    for (r, (_, src)) in left.regions.iter().zip(&used) {
+    for ((r, (_, src)), rim) in left.regions.iter().zip(&used).zip(&rims) {
         let grown = match src {
             Some(id) => {
                 let s = &sources[*id as usize];
@@ -510,7 +483,7 @@ pub fn synthesize(
                     radius,
                     candidates: opts.candidates,
                 };
-                let rim = rim_detail(mesh, atlas, res, &adj, &member, &r.faces, &low, s);
+                let rim = rim_detail(mesh, atlas, res, rim, &low, s);
                 surface::grow_patches(
                     mesh,
                     &adj,

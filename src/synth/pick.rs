@@ -11,6 +11,11 @@ use crate::resample::TexelSource;
 use nalgebra::{Matrix2, Matrix2x3, Point3, Vector3};
 use rayon::prelude::*;
 
+/// Luma of texel `i` of a row-major RGB float buffer.
+fn texel_luma(data: &[f32], i: usize) -> f64 {
+    crate::planar::luma(&[data[i * 3], data[i * 3 + 1], data[i * 3 + 2]])
+}
+
 /// Side of the blocks the seen test works on, texels.
 const BLOCK: usize = 8;
 
@@ -125,11 +130,7 @@ pub(super) fn candidates(
             let chart = atlas.face_chart[atlas.owner(y0 * n + x0)? as usize];
             let (mut mean, mut facing, mut centre, mut m, mut count) =
                 ([0f64; 3], 0.0, Vector3::zeros(), Matrix2::zeros(), 0usize);
-            let luma = |i: usize| {
-                0.299 * data[i * 3] as f64
-                    + 0.587 * data[i * 3 + 1] as f64
-                    + 0.114 * data[i * 3 + 2] as f64
-            };
+            let luma = |i: usize| texel_luma(data, i);
             let mut detail = 0.0;
             let mut quad = [[0f64; 4]; 4];
             for y in (y0..y0 + size).step_by(4) {
@@ -202,38 +203,54 @@ pub(super) struct RimLook {
     pub(super) detail: Option<f64>,
 }
 
-/// Detail energy (as [`Candidate::detail`]) of the photographed texels of `faces`.
-pub(super) fn faces_detail(
+/// The photographed texels each of `faces` owns (texel index, face), face by face in row
+/// order.
+pub(super) fn photographed_texels(
     atlas: &Atlas,
-    color: &image::Rgb32FImage,
     source: &[u8],
     faces: &[u32],
-    lag: usize,
-) -> Option<f64> {
+) -> Vec<(usize, u32)> {
     let n = atlas.size as usize;
-    let data: &[f32] = color.as_raw();
-    let luma = |i: usize| {
-        0.299 * data[i * 3] as f64 + 0.587 * data[i * 3 + 1] as f64 + 0.114 * data[i * 3 + 2] as f64
-    };
-    let seen = |i: usize| source[i] == TexelSource::Photos as u8;
-    let (mut sum, mut count) = (0.0, 0usize);
+    let mut out = Vec::new();
     for &f in faces {
         let Some(((r0, r1), (c0, c1))) = atlas.face_rect(f as usize) else {
             continue;
         };
-        for y in r0.max(lag)..=r1.min(n - 1 - lag) {
-            for x in c0.max(lag)..=c1.min(n - 1 - lag) {
+        for y in r0..=r1 {
+            for x in c0..=c1 {
                 let i = y * n + x;
-                if atlas.owner(i) != Some(f) || !seen(i) {
-                    continue;
-                }
-                let nb = [i - lag, i + lag, i - lag * n, i + lag * n];
-                if nb.iter().all(|&j| seen(j)) {
-                    let around = nb.iter().map(|&j| luma(j)).sum::<f64>() / 4.0;
-                    sum += (luma(i) - around).powi(2);
-                    count += 1;
+                if atlas.owner(i) == Some(f) && source[i] == TexelSource::Photos as u8 {
+                    out.push((i, f));
                 }
             }
+        }
+    }
+    out
+}
+
+/// Detail energy (as [`Candidate::detail`]) of `texels` (from [`photographed_texels`]).
+pub(super) fn texels_detail(
+    atlas: &Atlas,
+    color: &image::Rgb32FImage,
+    source: &[u8],
+    texels: &[(usize, u32)],
+    lag: usize,
+) -> Option<f64> {
+    let n = atlas.size as usize;
+    let data: &[f32] = color.as_raw();
+    let luma = |i: usize| texel_luma(data, i);
+    let seen = |i: usize| source[i] == TexelSource::Photos as u8;
+    let inside = |v: usize| v >= lag && v + lag < n;
+    let (mut sum, mut count) = (0.0, 0usize);
+    for &(i, _) in texels {
+        if !inside(i % n) || !inside(i / n) {
+            continue;
+        }
+        let nb = [i - lag, i + lag, i - lag * n, i + lag * n];
+        if nb.iter().all(|&j| seen(j)) {
+            let around = nb.iter().map(|&j| luma(j)).sum::<f64>() / 4.0;
+            sum += (luma(i) - around).powi(2);
+            count += 1;
         }
     }
     (count >= 64).then(|| sum / count as f64)

@@ -475,6 +475,33 @@ pub(super) fn grow_patches(
     patches.len() - before
 }
 
+/// The surface point of texel (x, y) in face `f`: barycentrics clamped to the triangle (a
+/// texel a face owns may have its centre just outside it) and the point they give.
+pub(super) fn texel_point(
+    mesh: &Mesh,
+    atlas: &Atlas,
+    f: u32,
+    x: usize,
+    y: usize,
+) -> Option<([f64; 3], Point3<f64>)> {
+    let b = atlas.barycentric(f as usize, x, y)?;
+    let b = b.map(|v| v.clamp(0.0, 1.0));
+    let sum = b[0] + b[1] + b[2];
+    let b = b.map(|v| v / sum.max(1e-12));
+    let tri = mesh.triangle(FaceId(f));
+    let p = Point3::from(tri[0].coords * b[0] + tri[1].coords * b[1] + tri[2].coords * b[2]);
+    Some((b, p))
+}
+
+/// Per-vertex colours `v` interpolated at barycentrics `b` of the face with corners `fv`.
+pub(super) fn at_bary(v: &[[f32; 3]], fv: &[crate::mesh::VertexId; 3], b: &[f64; 3]) -> [f32; 3] {
+    std::array::from_fn(|k| {
+        v[fv[0].idx()][k] * b[0] as f32
+            + v[fv[1].idx()][k] * b[1] as f32
+            + v[fv[2].idx()][k] * b[2] as f32
+    })
+}
+
 /// Writes stage 6's colour into every unseen texel of a region face: the low band
 /// interpolated from the vertices plus the blended patch detail at the texel's surface point.
 /// Returns (texels written, texels with no patch weight: low band only) and, with
@@ -507,11 +534,7 @@ pub(super) fn bake(
             let mut near: Vec<(f32, [f32; 3])> = Vec::new();
             for x in 0..n {
                 let i = y * n + x;
-                let s = source[i];
-                let hidden = s == TexelSource::GreenFallback as u8
-                    || s == TexelSource::Blue as u8
-                    || s == TexelSource::Red as u8;
-                if !hidden {
+                if !TexelSource::is_unseen(source[i]) {
                     continue;
                 }
                 let Some(f) = atlas.owner(i) else { continue };
@@ -519,26 +542,15 @@ pub(super) fn bake(
                 if sl == u32::MAX {
                     continue;
                 }
-                let Some(b) = atlas.barycentric(f as usize, x, y) else {
+                let Some((b, p)) = texel_point(mesh, atlas, f, x, y) else {
                     continue;
                 };
-                let b = b.map(|v| v.clamp(0.0, 1.0));
-                let sum = b[0] + b[1] + b[2];
-                let b = b.map(|v| v / sum.max(1e-12));
                 let fv = mesh.faces[f as usize];
-                let tri = mesh.triangle(FaceId(f));
-                let p = Point3::from(
-                    tri[0].coords * b[0] + tri[1].coords * b[1] + tri[2].coords * b[2],
-                );
                 let np = (normals[fv[0].idx()] * b[0]
                     + normals[fv[1].idx()] * b[1]
                     + normals[fv[2].idx()] * b[2])
                     .normalize();
-                let base: [f32; 3] = std::array::from_fn(|k| {
-                    low[fv[0].idx()][k] * b[0] as f32
-                        + low[fv[1].idx()][k] * b[1] as f32
-                        + low[fv[2].idx()][k] * b[2] as f32
-                });
+                let base = at_bary(low, &fv, &b);
                 near.clear();
                 let mut src_id = u32::MAX;
                 let mut heaviest = (0f32, u32::MAX);
