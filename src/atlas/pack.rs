@@ -9,6 +9,8 @@
 use super::param::ChartMap;
 use crate::mesh::{Mesh, UvMap};
 use nalgebra::Vector2;
+use std::cmp::Reverse;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Options for [`pack`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -272,13 +274,20 @@ fn mask(foot: &[bool], w: usize, h: usize, offset: Vector2<f64>, rot: u8, gutter
     }
 }
 
+/// Texels per block of a page row in [`Page::block_max`].
+const BLOCK: usize = 32;
+
 /// One atlas page: occupancy and, per texel, the length of the free (positive) or occupied
-/// (negative) run that starts there, so the search skips whole runs.
+/// (negative) run that starts there, so the search skips whole runs; per row, the longest free
+/// run, and per block of [`BLOCK`] texels of a row the longest free run starting in it, so the
+/// search skips whole blocks of a fragmented row.
 struct Page {
     size: usize,
     occ: Vec<bool>,
     run: Vec<i32>,
     max_free: Vec<u32>,
+    /// `size.div_ceil(BLOCK)` values per row.
+    block_max: Vec<u32>,
 }
 
 impl Page {
@@ -289,17 +298,49 @@ impl Page {
                 *r = (size - x) as i32;
             }
         }
+        let blocks = size.div_ceil(BLOCK);
+        let block_max = (0..size)
+            .flat_map(|_| (0..blocks).map(|b| (size - b * BLOCK) as u32))
+            .collect();
         Page {
             size,
             occ: vec![false; size * size],
             run,
             max_free: vec![size as u32; size],
+            block_max,
         }
     }
 
+    /// The first texel `x >= from` of row `y` where a free run of at least `need` starts.
+    fn next_fit(&self, y: usize, from: usize, need: usize) -> Option<usize> {
+        let n = self.size;
+        let blocks = n.div_ceil(BLOCK);
+        let (run, bmax) = (
+            &self.run[y * n..y * n + n],
+            &self.block_max[y * blocks..y * blocks + blocks],
+        );
+        let mut x = from;
+        while x < n {
+            let b = x / BLOCK;
+            if (bmax[b] as usize) < need {
+                x = (b + 1) * BLOCK;
+                continue;
+            }
+            let v = run[x];
+            if v > 0 && v as usize >= need {
+                return Some(x);
+            }
+            // Inside a free run every later start is shorter: jump to its end; an occupied run:
+            // past it.
+            x += v.unsigned_abs() as usize;
+        }
+        None
+    }
+
     /// The first position (row-major, top-left corner of the mask's box) where the dilated
-    /// footprint meets no occupied texel and stays inside the page.
-    fn find(&self, m: &Mask) -> Option<(usize, usize)> {
+    /// footprint meets no occupied texel and stays inside the page, among those whose bottom
+    /// edge `y + m.h` is at most `bottom` (read as it goes: other searches lower it).
+    fn find(&self, m: &Mask, bottom: &AtomicUsize) -> Option<(usize, usize)> {
         let n = self.size;
         if m.w > n || m.h > n {
             return None;
@@ -310,8 +351,16 @@ impl Page {
             .enumerate()
             .filter_map(|(r, s)| s.map(|(a, b)| (r, a as usize, (b - a + 1) as usize)))
             .collect();
+        // The widest row leads: candidates are where it fits, found through the block index.
+        let Some(&(pr, pa, pneed)) = rows.iter().max_by_key(|r| (r.2, Reverse(r.0))) else {
+            return Some((0, 0));
+        };
+        let blocks = n.div_ceil(BLOCK);
         let mut first = 0;
         for y in 0..=n - m.h {
+            if y + m.h > bottom.load(Ordering::Relaxed) {
+                return None;
+            }
             if rows
                 .iter()
                 .any(|&(r, _, need)| (self.max_free[y + r] as usize) < need)
@@ -320,6 +369,24 @@ impl Page {
             }
             let mut x = 0;
             'scan: while x + m.w <= n {
+                let Some(c) = self.next_fit(y + pr, x + pa, pneed) else {
+                    break;
+                };
+                x = c - pa;
+                if x + m.w > n {
+                    break;
+                }
+                // The block index first (32 times smaller than the runs, so mostly in cache):
+                // a row whose block holds no run long enough fails anywhere in that block.
+                for k in 0..rows.len() {
+                    let (r, a, need) = rows[(first + k) % rows.len()];
+                    let b = (x + a) / BLOCK;
+                    if (self.block_max[(y + r) * blocks + b] as usize) < need {
+                        first = (first + k) % rows.len();
+                        x = (b + 1) * BLOCK - a;
+                        continue 'scan;
+                    }
+                }
                 for k in 0..rows.len() {
                     let (r, a, need) = rows[(first + k) % rows.len()];
                     let v = self.run[(y + r) * n + x + a];
@@ -341,6 +408,7 @@ impl Page {
     /// Marks the footprint of `m` at `(x, y)` occupied and updates the runs of its rows.
     fn place(&mut self, m: &Mask, x: usize, y: usize) {
         let n = self.size;
+        let blocks = n.div_ceil(BLOCK);
         let mut row_end: Vec<Option<(usize, usize)>> = vec![None; m.h];
         for &(r, a, b) in &m.runs {
             let row = (y + r as usize) * n;
@@ -357,6 +425,7 @@ impl Page {
             let (occ, run) = (&self.occ[row..row + n], &mut self.run[row..row + n]);
             // Runs depend on the texel to the right only, so they change from `last` leftwards
             // until a recomputed value left of the placement equals the old one.
+            let mut lowest = 0;
             for c in (0..=last).rev() {
                 let next = if c + 1 < n { run[c + 1] } else { 0 };
                 let v = match (occ[c], c + 1 < n && occ[c + 1]) {
@@ -366,22 +435,20 @@ impl Page {
                     (false, true) => 1,
                 };
                 if c < first && run[c] == v {
+                    lowest = c + 1;
                     break;
                 }
                 run[c] = v;
             }
-            let mut best = 0;
-            let mut c = 0;
-            while c < n {
-                let v = run[c];
-                if v > 0 {
-                    best = best.max(v as u32);
-                    c += v as usize;
-                } else {
-                    c += (-v) as usize;
-                }
+            let bmax = &mut self.block_max[(y + r) * blocks..(y + r + 1) * blocks];
+            for b in lowest / BLOCK..=last / BLOCK {
+                bmax[b] = run[b * BLOCK..((b + 1) * BLOCK).min(n)]
+                    .iter()
+                    .map(|&v| v.max(0) as u32)
+                    .max()
+                    .unwrap_or(0);
             }
-            self.max_free[y + r] = best;
+            self.max_free[y + r] = bmax.iter().copied().max().unwrap_or(0);
         }
     }
 }
@@ -412,16 +479,10 @@ fn attempt(
     one_page: bool,
 ) -> Option<(Vec<Placement>, u32)> {
     use rayon::prelude::*;
-    let masks: Vec<Vec<Mask>> = charts
-        .par_iter()
-        .map(|(uv, faces)| {
-            let (foot, w, h, offset) = footprint(uv, faces, gutter);
-            ROTATIONS
-                .iter()
-                .map(|&r| mask(&foot, w, h, offset, r, gutter))
-                .collect()
-        })
-        .collect();
+    // Masks are made in batches in packing order: an attempt that fails (most of a density
+    // search) stops early and does not rasterise the charts it never reached.
+    let mut masks: Vec<Vec<Mask>> = vec![Vec::new(); charts.len()];
+    let mut made = 0;
     let mut pages = vec![Page::new(size)];
     let mut out = vec![
         Placement {
@@ -433,14 +494,39 @@ fn attempt(
         };
         charts.len()
     ];
-    for &i in order {
+    for (j, &i) in order.iter().enumerate() {
+        if j == made {
+            let batch = &order[made..(made + (2 * made).clamp(16, 256)).min(order.len())];
+            let new: Vec<Vec<Mask>> = batch
+                .par_iter()
+                .map(|&c| {
+                    let (uv, faces) = &charts[c];
+                    let (foot, w, h, offset) = footprint(uv, faces, gutter);
+                    ROTATIONS
+                        .iter()
+                        .map(|&r| mask(&foot, w, h, offset, r, gutter))
+                        .collect()
+                })
+                .collect();
+            for (&c, m) in batch.iter().zip(new) {
+                masks[c] = m;
+            }
+            made += batch.len();
+        }
         let mut placed = false;
         for (p, page) in pages.iter_mut().enumerate() {
             // Lowest top edge wins: it keeps the filled region flat.
+            // Each turn stops searching below the lowest bottom edge another turn has found
+            // (ties go on, to compare x): the winner does not depend on timing.
+            let bottom = AtomicUsize::new(usize::MAX);
             let best = masks[i]
                 .par_iter()
                 .enumerate()
-                .filter_map(|(k, m)| page.find(m).map(|(x, y)| ((y + m.h, x, k), (x, y))))
+                .filter_map(|(k, m)| {
+                    let (x, y) = page.find(m, &bottom)?;
+                    bottom.fetch_min(y + m.h, Ordering::Relaxed);
+                    Some(((y + m.h, x, k), (x, y)))
+                })
                 .min_by_key(|(key, _)| *key);
             if let Some(((_, _, k), (x, y))) = best {
                 let m = &masks[i][k];
@@ -466,7 +552,7 @@ fn attempt(
                 .enumerate()
                 .min_by_key(|(_, m)| m.w.max(m.h))
                 .expect("four rotations");
-            let (x, y) = page.find(m)?;
+            let (x, y) = page.find(m, &AtomicUsize::new(usize::MAX))?;
             page.place(m, x, y);
             out[i] = Placement {
                 page: pages.len() as u32,
