@@ -392,17 +392,19 @@ fn synthesize_level(
                 .par_iter()
                 .map(|&k| schedule(l, &comps[k], &dist, &slot))
                 .collect();
-            let mut used = [false; 8];
+            let mut used = [0usize; 8];
             for (order, _) in &scheds {
                 for &(_, o) in order {
-                    used[o as usize] = true;
+                    used[o as usize] += 1;
                 }
             }
             let sources: Vec<Option<Sources>> = (0..8)
                 .into_par_iter()
                 .map(|o| {
-                    used[o].then(|| {
-                        build_sources(l, coarse, rect, o, ch, dim, p, (i * 131 + ci) as u64)
+                    (used[o] > 0).then(|| {
+                        let cap = source_cap(p.max_sources, used[o]);
+                        let seed = (i * 131 + ci) as u64;
+                        build_sources(l, coarse, rect, o, ch, dim, p, cap, seed)
                     })
                 })
                 .collect();
@@ -446,6 +448,23 @@ fn synthesize_level(
     (out, st)
 }
 
+/// Source texels drawn per tree: as many as the window offers up to `max` (0: no limit), but
+/// no more than [`SOURCES_PER_QUERY`] per texel the tree serves (with a floor of
+/// [`MIN_SOURCES`]): a tree that answers a few hundred queries at a coarse level or for a rare
+/// kernel orientation does not need the sources of one that answers tens of thousands, and
+/// building it dominated synthesis.
+fn source_cap(max: usize, queries: usize) -> usize {
+    if max == 0 {
+        return 0;
+    }
+    (queries * SOURCES_PER_QUERY).clamp(MIN_SOURCES.min(max), max)
+}
+
+/// See [`source_cap`].
+const SOURCES_PER_QUERY: usize = 8;
+/// See [`source_cap`].
+const MIN_SOURCES: usize = 4096;
+
 #[allow(clippy::too_many_arguments)]
 fn build_sources(
     l: &Level,
@@ -455,6 +474,7 @@ fn build_sources(
     ch: usize,
     dim: usize,
     p: &Params,
+    max_sources: usize,
     salt: u64,
 ) -> Sources {
     let mut rng = SplitMix64::new(p.seed ^ salt.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ o as u64);
@@ -464,10 +484,10 @@ fn build_sources(
     // (uniform over the valid texels, as the full scan below), instead of testing every
     // texel of a 4096x4096 window for each of eight orientations. Windows with few valid
     // texels (an atlas's sparse charts) fall back to the scan.
-    if p.max_sources > 0 && rw * rh > 4 * p.max_sources {
-        let mut taken = std::collections::HashSet::with_capacity(p.max_sources);
-        for _ in 0..8 * p.max_sources {
-            if positions.len() == p.max_sources {
+    if max_sources > 0 && rw * rh > 4 * max_sources {
+        let mut taken = std::collections::HashSet::with_capacity(max_sources);
+        for _ in 0..8 * max_sources {
+            if positions.len() == max_sources {
                 break;
             }
             let r = rng.next_u64();
@@ -478,7 +498,7 @@ fn build_sources(
                 positions.push(q as u32);
             }
         }
-        if positions.len() < p.max_sources {
+        if positions.len() < max_sources {
             positions.clear();
         }
     }
@@ -491,12 +511,12 @@ fn build_sources(
                 }
             }
         }
-        if p.max_sources > 0 && positions.len() > p.max_sources {
-            for k in 0..p.max_sources {
+        if max_sources > 0 && positions.len() > max_sources {
+            for k in 0..max_sources {
                 let j = k + (rng.next_u64() % (positions.len() - k) as u64) as usize;
                 positions.swap(k, j);
             }
-            positions.truncate(p.max_sources);
+            positions.truncate(max_sources);
         }
     }
     positions.sort_unstable();
