@@ -355,7 +355,6 @@ impl Page {
         let Some(&(pr, pa, pneed)) = rows.iter().max_by_key(|r| (r.2, Reverse(r.0))) else {
             return Some((0, 0));
         };
-        let blocks = n.div_ceil(BLOCK);
         let mut first = 0;
         for y in 0..=n - m.h {
             if y + m.h > bottom.load(Ordering::Relaxed) {
@@ -375,17 +374,6 @@ impl Page {
                 x = c - pa;
                 if x + m.w > n {
                     break;
-                }
-                // The block index first (32 times smaller than the runs, so mostly in cache):
-                // a row whose block holds no run long enough fails anywhere in that block.
-                for k in 0..rows.len() {
-                    let (r, a, need) = rows[(first + k) % rows.len()];
-                    let b = (x + a) / BLOCK;
-                    if (self.block_max[(y + r) * blocks + b] as usize) < need {
-                        first = (first + k) % rows.len();
-                        x = (b + 1) * BLOCK - a;
-                        continue 'scan;
-                    }
                 }
                 for k in 0..rows.len() {
                     let (r, a, need) = rows[(first + k) % rows.len()];

@@ -51,8 +51,8 @@ pub(super) fn kd<const K: usize>(points: &[f32], dim: usize) -> Box<dyn Search> 
 /// constant (kiddo's dimension is a type parameter; zero padding changes no distance). The
 /// fast search's reduced vectors (1 to 8 numbers) get a tree of exactly their width: kiddo
 /// splits on the dimensions in turn, and a split on a zero-padded dimension separates nothing,
-/// so every query must descend both sides of it (4 components in an 8-wide tree took half of
-/// the queries' time to no effect).
+/// so every query must descend both sides of it (on the corset scene, restoration took 2.6-2.75
+/// s with 8-wide trees and 2.3 s with exact widths, `docs/benchmarks.md`).
 pub(super) fn build_tree(points: &[f32], dim: usize) -> Box<dyn Search> {
     match dim {
         0..=1 => kd::<1>(points, dim),
