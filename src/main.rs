@@ -131,13 +131,20 @@ enum Command {
         /// Robust method: exponent on the projected-area view weight.
         #[arg(long, default_value_t = scantex::bind::BindOptions::default().weight_power, allow_negative_numbers = true, value_parser = number_in(scantex::bind::WEIGHT_POWER_RANGE))]
         weight_power: f64,
-        /// Per-photograph gains solved from overlaps: off, exposure (gain per channel) or
-        /// lighting (also shading by surface normal). Default: lighting, off with
-        /// --method paper.
+        /// Per-photograph gains solved from overlaps: off, exposure (gain per channel),
+        /// lighting (also shading by surface normal) or auto (whichever, with whichever
+        /// --delight, best predicts each photograph from the others; report.json gives every
+        /// candidate's score). Default: auto, off with --method paper.
         #[arg(long)]
         gains: Option<scantex::photometric::GainModel>,
-        /// With --gains lighting, keep the shading all photographs share (their average
-        /// lighting) in the texture instead of dividing it out to leave albedo.
+        /// The shading all photographs share (their average light): off (kept in the
+        /// texture), steps (fitted to brightness steps between nearby vertices), global
+        /// (fitted to brightness over the normal; reads albedo that follows the normal as
+        /// light) or auto (chosen as --gains auto chooses). Default: auto, off with
+        /// --method paper.
+        #[arg(long, conflicts_with = "no_delight")]
+        delight: Option<scantex::photometric::Delight>,
+        /// Same as --delight off.
         #[arg(long)]
         no_delight: bool,
         /// Solve no per-photograph exposure, white balance or shading (same as --gains off):
@@ -363,6 +370,10 @@ enum Command {
         /// Held-out photographs.
         #[arg(long, default_value_t = scantex::sample::SampleOptions::default().heldout, allow_negative_numbers = true, value_parser = number_in(0usize..=100_000))]
         heldout: usize,
+        /// Procedural object without --from-mesh: torus (colours independent of orientation)
+        /// or jar (white top, saturated sides: albedo that follows the normal).
+        #[arg(long, default_value_t = scantex::sample::SampleOptions::default().object, conflicts_with = "from_mesh")]
+        object: scantex::sample::SampleObject,
     },
 }
 
@@ -639,6 +650,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             weight_power,
             gains,
             no_delight,
+            delight,
             no_exposure_solve,
             merge,
             merge_masks,
@@ -677,7 +689,12 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             if no_exposure_solve {
                 opts.photometric.model = scantex::photometric::GainModel::Off;
             }
-            opts.photometric.delight = !no_delight;
+            if let Some(d) = delight {
+                opts.photometric.delight = d;
+            }
+            if no_delight {
+                opts.photometric.delight = scantex::photometric::Delight::Off;
+            }
             opts.merge.merge = merge;
             if let Some(m) = merge_masks {
                 opts.merge.masks = m;
@@ -786,6 +803,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             fixed_light,
             unseen_sector,
             heldout,
+            object,
         } => {
             let opts = scantex::sample::SampleOptions {
                 up: up.vector(),
@@ -795,6 +813,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
                 gain_range,
                 vary_light: !fixed_light,
                 unseen_sector,
+                object,
                 ..Default::default()
             };
             let report = scantex::sample::generate_to(from_mesh.as_deref(), &opts, &out)?;

@@ -205,6 +205,7 @@ impl TextureOptions {
         let mut o = TextureOptions::default();
         o.bind.method = bind::Method::Paper;
         o.photometric.model = GainModel::Off;
+        o.photometric.delight = photometric::Delight::Off;
         o.merge.masks = Masks::Paper;
         o
     }
@@ -493,7 +494,8 @@ pub fn texture(
         warnings.push(w);
     }
     progress.start("gains", 1);
-    let (binding, gains) = photometric::normalise(binding, &normals, &opts.photometric);
+    let (binding, gains) =
+        photometric::normalise(binding, &m.positions, &normals, &m.faces, &opts.photometric);
     progress.finish();
     stages.push(stage_since("gains", &mut t));
     let (mut resampled, mut merging) = merge::merge(

@@ -47,6 +47,42 @@ pub struct SampleOptions {
     pub unseen_sector: f64,
     /// Random seed: same seed, same bytes. Default: 1.
     pub seed: u64,
+    /// The procedural object photographed when no mesh is given. Default: the torus.
+    pub object: SampleObject,
+}
+
+/// Procedural objects [`generate_to`] can photograph.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum SampleObject {
+    /// A dented torus whose colours do not follow its orientation ([`dented_torus`]).
+    #[default]
+    Torus,
+    /// A painted jar whose albedo follows its normal: a white top, saturated sides, a coloured
+    /// foot ([`painted_jar`]). It provokes delighting, which reads such albedo as light.
+    Jar,
+}
+
+impl std::fmt::Display for SampleObject {
+    /// The name `from_str` reads.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            SampleObject::Torus => "torus",
+            SampleObject::Jar => "jar",
+        })
+    }
+}
+
+impl std::str::FromStr for SampleObject {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "torus" => Ok(SampleObject::Torus),
+            "jar" => Ok(SampleObject::Jar),
+            _ => Err(format!(
+                "unknown sample object '{s}': expected torus or jar"
+            )),
+        }
+    }
 }
 
 /// Sectors [`SampleOptions::unseen_sector`] may take, degrees.
@@ -69,6 +105,7 @@ impl Default for SampleOptions {
             jpeg_quality: 97,
             unseen_sector: 0.0,
             seed: 1,
+            object: SampleObject::Torus,
         }
     }
 }
@@ -141,25 +178,41 @@ pub fn dented_torus(n_theta: usize, n_phi: usize, tex_size: (u32, u32)) -> (Mesh
         }
     }
     let vid = |i: usize, j: usize| VertexId(((i % n_theta) * n_phi + j % n_phi) as u32);
-    let mut coords = Vec::with_capacity((n_theta + 1) * (n_phi + 1));
-    for i in 0..=n_theta {
-        for j in 0..=n_phi {
-            coords.push(Vector2::new(
-                i as f32 / n_theta as f32,
-                j as f32 / n_phi as f32,
-            ));
+    grid_mesh(positions, n_theta, n_phi, &vid, tex_size, &|u, v| {
+        torus_colour(TAU * u, TAU * v)
+    })
+}
+
+/// A mesh over an `n_u x n_v` grid of parameters whose corner `(i, j)` is vertex `vid(i, j)`,
+/// two triangles per cell (counter-clockwise seen from outside when d/du x d/dv points
+/// outwards; triangles that a pole collapses are left out), with texture coordinates
+/// `(i / n_u, j / n_v)` and a `tex_size` texture of `colour(u, v)`.
+fn grid_mesh(
+    positions: Vec<Point3<f64>>,
+    n_u: usize,
+    n_v: usize,
+    vid: &dyn Fn(usize, usize) -> VertexId,
+    tex_size: (u32, u32),
+    colour: &dyn Fn(f64, f64) -> [f32; 3],
+) -> (Mesh, DynamicImage) {
+    let mut coords = Vec::with_capacity((n_u + 1) * (n_v + 1));
+    for i in 0..=n_u {
+        for j in 0..=n_v {
+            coords.push(Vector2::new(i as f32 / n_u as f32, j as f32 / n_v as f32));
         }
     }
-    let tid = |i: usize, j: usize| (i * (n_phi + 1) + j) as u32;
+    let tid = |i: usize, j: usize| (i * (n_v + 1) + j) as u32;
     let mut faces = Vec::new();
     let mut uv_faces = Vec::new();
-    for i in 0..n_theta {
-        for j in 0..n_phi {
-            // Counter-clockwise seen from outside: d/dtheta x d/dphi points outwards.
-            faces.push([vid(i, j), vid(i + 1, j + 1), vid(i, j + 1)]);
-            uv_faces.push([tid(i, j), tid(i + 1, j + 1), tid(i, j + 1)]);
-            faces.push([vid(i, j), vid(i + 1, j), vid(i + 1, j + 1)]);
-            uv_faces.push([tid(i, j), tid(i + 1, j), tid(i + 1, j + 1)]);
+    for i in 0..n_u {
+        for j in 0..n_v {
+            for c in [[(0, 0), (1, 1), (0, 1)], [(0, 0), (1, 0), (1, 1)]] {
+                let f = c.map(|(a, b)| vid(i + a, j + b));
+                if f[0] != f[1] && f[1] != f[2] && f[0] != f[2] {
+                    faces.push(f);
+                    uv_faces.push(c.map(|(a, b)| tid(i + a, j + b)));
+                }
+            }
         }
     }
     let mesh = Mesh {
@@ -175,9 +228,92 @@ pub fn dented_torus(n_theta: usize, n_phi: usize, tex_size: (u32, u32)) -> (Mesh
     let tex = Rgb32FImage::from_fn(tw, th, |x, y| {
         let u = (x as f64 + 0.5) / tw as f64;
         let v = 1.0 - (y as f64 + 0.5) / th as f64;
-        image::Rgb(torus_colour(TAU * u, TAU * v))
+        image::Rgb(colour(u, v))
     });
     (mesh, DynamicImage::ImageRgb8(crate::render::to_rgb8(&tex)))
+}
+
+/// The jar's profile, bottom pole to top pole, as (radius, height) corners: a flat base, a
+/// vertical foot, a bulging body and a domed top.
+fn jar_profile() -> Vec<(f64, f64)> {
+    use std::f64::consts::PI;
+    let mut p = vec![(0.0, 0.0), (0.55, 0.0), (0.55, 0.2)];
+    for k in 1..=24 {
+        let t = k as f64 / 24.0;
+        p.push((0.55 + 0.2 * (PI * t).sin(), 0.2 + 0.9 * t));
+    }
+    for k in 1..=16 {
+        let a = k as f64 / 16.0 * PI / 2.0;
+        p.push((0.55 * a.cos(), 1.1 + 0.3 * a.sin()));
+    }
+    p
+}
+
+/// The jar's true colour at angle `theta` and profile position `s` (arclength fraction from
+/// the bottom pole), with `foot` and `top` the fractions where the body starts and ends:
+/// green base and foot, pink body with blue bands, white top; a little value noise on all.
+fn jar_colour(theta: f64, s: f64, foot: f64, top: f64) -> [f32; 3] {
+    use std::f64::consts::TAU;
+    let t = theta.rem_euclid(TAU);
+    let noise = lattice((t / TAU * 512.0) as i64, (s * 256.0) as i64) - 0.5;
+    let base = if s < foot {
+        [0.22, 0.52, 0.30]
+    } else if s >= top {
+        [0.80, 0.79, 0.76]
+    } else {
+        let b = (s - foot) / (top - foot);
+        // Two blue bands with a wavy edge on the pink body.
+        let w = 0.015 * (6.0 * t).sin();
+        if (0.28..0.38).contains(&(b + w)) || (0.66..0.72).contains(&(b + w)) {
+            [0.20, 0.34, 0.80]
+        } else {
+            [0.88, 0.34, 0.50]
+        }
+    };
+    base.map(|c| (c * (1.0 + 0.12 * noise)).clamp(0.0, 1.0) as f32)
+}
+
+/// The painted jar with its true texture: a surface of revolution about +Z (closed, genus 0),
+/// `n_theta` segments around and `n_s` along the profile. Its albedo follows its normal (the
+/// top faces up and is white, the sides are saturated), the case where delighting mistakes
+/// albedo for light.
+pub fn painted_jar(n_theta: usize, n_s: usize, tex_size: (u32, u32)) -> (Mesh, DynamicImage) {
+    use std::f64::consts::TAU;
+    let corners = jar_profile();
+    let mut arc = vec![0.0];
+    for w in corners.windows(2) {
+        let d = ((w[1].0 - w[0].0).powi(2) + (w[1].1 - w[0].1).powi(2)).sqrt();
+        arc.push(arc.last().unwrap() + d);
+    }
+    let total = *arc.last().unwrap();
+    // Body from the foot's top corner (index 2) to the dome's start (index 2 + 24).
+    let (foot, top) = (arc[2] / total, arc[26] / total);
+    let at = |s: f64| {
+        let d = s * total;
+        let k = arc.partition_point(|&a| a <= d).clamp(1, corners.len() - 1);
+        let f = ((d - arc[k - 1]) / (arc[k] - arc[k - 1])).clamp(0.0, 1.0);
+        let (a, b) = (corners[k - 1], corners[k]);
+        (a.0 + f * (b.0 - a.0), a.1 + f * (b.1 - a.1))
+    };
+    // Rings j = 1..n_s - 1, poles at j = 0 (bottom) and j = n_s (top).
+    let mut positions = vec![Point3::new(0.0, 0.0, 0.0)];
+    for j in 1..n_s {
+        let (r, z) = at(j as f64 / n_s as f64);
+        for i in 0..n_theta {
+            let th = TAU * i as f64 / n_theta as f64;
+            positions.push(Point3::new(r * th.cos(), r * th.sin(), z));
+        }
+    }
+    let top_pole = positions.len() as u32;
+    positions.push(Point3::new(0.0, 0.0, at(1.0).1));
+    let vid = |i: usize, j: usize| match j {
+        0 => VertexId(0),
+        j if j == n_s => VertexId(top_pole),
+        j => VertexId((1 + (j - 1) * n_theta + i % n_theta) as u32),
+    };
+    grid_mesh(positions, n_theta, n_s, &vid, tex_size, &|u, v| {
+        jar_colour(TAU * u, v, foot, top)
+    })
 }
 
 /// A camera at `centre` looking at `target`, image "up" along `up`.
@@ -585,7 +721,10 @@ pub fn generate_to(
 ) -> Result<SampleReport> {
     match from_mesh {
         None => {
-            let (mesh, tex) = dented_torus(170, 72, (1024, 512));
+            let (mesh, tex) = match opts.object {
+                SampleObject::Torus => dented_torus(170, 72, (1024, 512)),
+                SampleObject::Jar => painted_jar(160, 96, (1024, 512)),
+            };
             generate(&mesh, &tex, opts, out)
         }
         Some(p) => {
@@ -617,5 +756,29 @@ mod tests {
             })
             .sum();
         assert!(vol > 0.0, "signed volume {vol}");
+    }
+
+    /// The jar is closed (every edge shared by two faces, Euler characteristic 2) and
+    /// oriented outwards.
+    #[test]
+    fn painted_jar_is_closed_and_faces_outwards() {
+        let (m, _) = super::painted_jar(24, 12, (4, 4));
+        let vol: f64 = (0..m.num_faces() as u32)
+            .map(|f| {
+                let [a, b, c] = m.triangle(crate::mesh::FaceId(f));
+                a.coords.dot(&b.coords.cross(&c.coords)) / 6.0
+            })
+            .sum();
+        assert!(vol > 0.0, "signed volume {vol}");
+        let mut edges = std::collections::HashMap::new();
+        for f in &m.faces {
+            for k in 0..3 {
+                let (a, b) = (f[k].0, f[(k + 1) % 3].0);
+                *edges.entry((a.min(b), a.max(b))).or_insert(0) += 1;
+            }
+        }
+        assert!(edges.values().all(|&c| c == 2));
+        let chi = m.num_vertices() as i64 - edges.len() as i64 + m.num_faces() as i64;
+        assert_eq!(chi, 2);
     }
 }

@@ -272,6 +272,58 @@ fn default_beats_paper_on_held_out_views() {
     assert!(psnr[1] > psnr[0] + 0.3, "paper {psnr:?} default");
 }
 
+/// The painted jar (a white top over saturated sides, albedo that follows the normal), lit from
+/// a new direction in every photograph: delighting by the brightness over the normal takes the
+/// white for light, by the steps it keeps it, and the default (auto) finds that out from the
+/// photographs: its held-out PSNR is within 0.2 dB of the best forced candidate's and well
+/// above the old default's (lighting, brightness delighting: 24.7 against 21.9 dB here).
+#[test]
+fn auto_gains_pick_what_predicts_the_photographs_on_the_painted_jar() {
+    use scantex::photometric::{Delight, GainModel};
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("jar");
+    let sample = SampleOptions {
+        photos: 12,
+        heldout: 3,
+        size: (480, 360),
+        object: scantex::sample::SampleObject::Jar,
+        ..Default::default()
+    };
+    scantex::sample::generate_to(None, &sample, &scene).unwrap();
+    let mut scores = Vec::new();
+    for (model, delight) in [
+        (GainModel::Auto, Delight::Auto),
+        (GainModel::Lighting, Delight::Global),
+        (GainModel::Lighting, Delight::Off),
+        (GainModel::Lighting, Delight::Steps),
+        (GainModel::Exposure, Delight::Steps),
+    ] {
+        let mut opts = sized(1024);
+        opts.photometric.model = model;
+        opts.photometric.delight = delight;
+        let out = dir.path().join(format!("{model}_{delight}"));
+        let rep = texture_to(&scene, &opts, &out);
+        if model == GainModel::Auto {
+            assert_eq!(rep.gains.candidates.len(), 9, "{:?}", rep.gains.candidates);
+            assert_ne!(rep.gains.model, GainModel::Auto);
+            assert_ne!(rep.gains.delight, Delight::Auto);
+        } else {
+            assert!(rep.gains.candidates.is_empty());
+        }
+        scores.push(held_out(&scene, &out).psnr);
+    }
+    let best = scores[1..].iter().cloned().fold(f64::MIN, f64::max);
+    assert!(
+        scores[0] > best - 0.2,
+        "auto {} against {scores:?}",
+        scores[0]
+    );
+    assert!(
+        scores[0] > scores[1] + 2.0,
+        "auto against brightness delighting: {scores:?}"
+    );
+}
+
 /// Multiband merging hides the seams between photographs that exposure and white balance
 /// differences leave (no gains solved, so only blending can remove them), keeps every chart
 /// texel filled, and does not spoil held-out views.
@@ -284,6 +336,7 @@ fn multiband_hides_view_seams_that_winner_take_all_shows() {
     for merge in [Merge::None, Merge::Average, Merge::Multiband] {
         let mut opts = sized(1024);
         opts.photometric.model = scantex::photometric::GainModel::Off;
+        opts.photometric.delight = scantex::photometric::Delight::Off;
         opts.merge.merge = merge;
         let r = texture(mesh, &s.photos, &opts, &Silent).unwrap();
         let seams = r.report.seams;
