@@ -153,6 +153,10 @@ pub struct PhotometricOptions {
     pub outlier_scale: f64,
     /// Gains are clamped to [1 / max_gain, max_gain] when applied. Default: 4.
     pub max_gain: f32,
+    /// A photograph's white balance keeps each channel within this factor of the channels'
+    /// geometric mean: the most the gains may move a texel's chroma (shading is grey and
+    /// moves none). Default: 2.
+    pub max_chroma: f64,
     /// Whether and how to divide out the shading common to all photographs, leaving albedo,
     /// which is what glTF's base colour and any relit renderer expect. Default: `Auto`.
     pub delight: Delight,
@@ -166,6 +170,7 @@ impl Default for PhotometricOptions {
             ridge: 0.05,
             outlier_scale: 0.15,
             max_gain: 4.0,
+            max_chroma: 2.0,
             delight: Delight::Auto,
         }
     }
@@ -189,6 +194,12 @@ impl PhotometricOptions {
         }
         if !(self.max_gain >= 1.0 && self.max_gain.is_finite()) {
             return bad("max_gain", "photometric max gain must be finite and >= 1");
+        }
+        if !(self.max_chroma >= 1.0 && self.max_chroma.is_finite()) {
+            return bad(
+                "max_chroma",
+                "photometric max chroma must be finite and >= 1",
+            );
         }
         Ok(())
     }
@@ -390,6 +401,8 @@ pub fn solve(
     let cell_of = if scored { cells(positions) } else { Vec::new() };
     let mut candidates = Vec::new();
     let mut solved = Vec::new();
+    // The step fit's vertex pairs, found once for every gain model that needs them.
+    let pairs = std::sync::OnceLock::new();
     let mut per_photo_losses: Vec<Vec<Option<f64>>> = Vec::new();
     for &model in &models {
         let (per_photo, consensus, rms_before, rms_after) =
@@ -397,7 +410,8 @@ pub fn solve(
         for &delight in &delights {
             let coeffs = match delight {
                 Delight::Steps => {
-                    shading_from_steps(&consensus, &used, &basis_of, faces, opts.ridge)
+                    let pairs = pairs.get_or_init(|| ring_pairs(faces, nv, RING, &|v| used[v]));
+                    shading_from_steps(&consensus, &used, &basis_of, pairs, opts.ridge)
                 }
                 Delight::Global => {
                     shading_from_brightness(&consensus, &used, &basis_of, opts.ridge)
@@ -565,7 +579,17 @@ fn fit_model(
         gains = by_photo
             .par_iter()
             .zip(&robust_w)
-            .map(|(obs, rws)| fit_photo(obs, rws, basis_of, &consensus, terms, opts.ridge))
+            .map(|(obs, rws)| {
+                fit_photo(
+                    obs,
+                    rws,
+                    basis_of,
+                    &consensus,
+                    terms,
+                    opts.ridge,
+                    opts.max_chroma,
+                )
+            })
             .collect();
         // Gauge: the weighted mean gain over all samples is 1 per channel.
         let mut mean = [0f64; 4];
@@ -721,14 +745,18 @@ fn shading_from_steps(
     consensus: &[[f32; 3]],
     used: &[bool],
     basis_of: &[[f64; TERMS]],
-    faces: &[[VertexId; 3]],
+    pairs: &[(u32, u32)],
     ridge: f64,
 ) -> [[f32; TERMS]; 3] {
     let mut identity = [0f32; TERMS];
     identity[0] = 1.0;
     let grey = |v: usize| consensus[v].iter().map(|&c| c as f64).sum::<f64>();
-    let ok = |v: usize| used[v] && grey(v) > 1e-4;
-    let edges = ring_pairs(faces, consensus.len(), RING, &ok);
+    let ok = |v: u32| used[v as usize] && grey(v as usize) > 1e-4;
+    let edges: Vec<(u32, u32)> = pairs
+        .iter()
+        .copied()
+        .filter(|&(a, b)| ok(a) && ok(b))
+        .collect();
     if edges.len() < 8 * TERMS {
         return [identity; 3];
     }
@@ -1031,6 +1059,7 @@ fn fit_photo(
     consensus: &[[f32; 3]],
     terms: usize,
     ridge: f64,
+    max_chroma: f64,
 ) -> PhotoGain {
     if obs.len() < 4 * terms {
         return PhotoGain::IDENTITY;
@@ -1084,12 +1113,24 @@ fn fit_photo(
             den[k] += w * p * p;
         }
     }
+    let wb: [f64; 3] = std::array::from_fn(|k| {
+        if den[k] > 1e-12 {
+            (num[k] / den[k]).max(1e-6)
+        } else {
+            1.0
+        }
+    });
+    let wb = bound_chroma(wb, max_chroma);
     PhotoGain {
-        coeffs: std::array::from_fn(|k| {
-            let wb = if den[k] > 1e-12 { num[k] / den[k] } else { 1.0 };
-            std::array::from_fn(|j| (shade[j] * wb) as f32)
-        }),
+        coeffs: std::array::from_fn(|k| std::array::from_fn(|j| (shade[j] * wb[k]) as f32)),
     }
+}
+
+/// `wb` with each channel within `max_chroma` of the channels' geometric mean (which it
+/// keeps): the most a white balance may move a texel's chroma.
+fn bound_chroma(wb: [f64; 3], max_chroma: f64) -> [f64; 3] {
+    let mean = (wb[0] * wb[1] * wb[2]).cbrt();
+    wb.map(|w| (w / mean).clamp(1.0 / max_chroma, max_chroma) * mean)
 }
 
 #[cfg(test)]
@@ -1325,6 +1366,29 @@ mod tests {
             "{g:?}"
         );
         assert!((contrast(&b) - 1.0).abs() < 0.1);
+    }
+
+    /// A white balance beyond the bound is pulled in, keeping its geometric mean; one inside it
+    /// is kept.
+    #[test]
+    fn chroma_bound_holds_and_keeps_the_mean() {
+        let b = bound_chroma([4.0, 1.0, 0.25], 2.0);
+        assert!((b[0] * b[1] * b[2] - 1.0).abs() < 1e-12);
+        assert!(
+            (b[0] - 2.0).abs() < 1e-12 && (b[2] - 0.5).abs() < 1e-12,
+            "{b:?}"
+        );
+        let k = bound_chroma([1.2, 1.0, 0.9], 2.0);
+        assert!(k
+            .iter()
+            .zip([1.2, 1.0, 0.9])
+            .all(|(a, b)| (a - b).abs() < 1e-12));
+        assert!(PhotometricOptions {
+            max_chroma: 0.5,
+            ..Default::default()
+        }
+        .validate()
+        .is_err());
     }
 
     #[test]
