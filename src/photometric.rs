@@ -1,5 +1,5 @@
 //! Stage 2b: photometric normalisation. In: the [`Binding`] (every vertex's colour in each of
-//! its valid photographs), vertex positions, normals and the faces. Out: [`Gains`], one gain
+//! its valid photographs), the mesh and its vertex normals. Out: [`Gains`], one gain
 //! field per photograph that maps its colours onto the consensus of all photographs, and the
 //! common shading divided out of them all.
 //!
@@ -21,7 +21,8 @@
 //! one that best predicts each photograph from the others (docs/decisions.md, issue 26).
 
 use crate::bind::Binding;
-use crate::mesh::VertexId;
+use crate::mesh::topology::one_rings;
+use crate::mesh::Mesh;
 use nalgebra::{SMatrix, SVector, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -328,12 +329,11 @@ impl Gains {
 /// way.
 pub fn normalise(
     mut binding: Binding,
-    positions: &[nalgebra::Point3<f64>],
+    mesh: &Mesh,
     normals: &[Vector3<f64>],
-    faces: &[[VertexId; 3]],
     opts: &PhotometricOptions,
 ) -> (Binding, Gains) {
-    let gains = solve(&binding, positions, normals, faces, opts);
+    let gains = solve(&binding, mesh, normals, opts);
     if !gains.is_identity() {
         gains.apply(&mut binding, normals);
     }
@@ -348,8 +348,9 @@ struct Obs {
     weight: f32,
 }
 
-/// Solves the gain of every photograph of `binding` (`normals` per vertex, unit length;
-/// `faces` give the neighbours the [`Delight::Steps`] fit compares).
+/// Solves the gain of every photograph of `binding` (`normals` per vertex of `mesh`, unit
+/// length; the mesh's edges give the neighbours the [`Delight::Steps`] fit compares, its
+/// positions the cells [`prediction_loss`] averages over).
 ///
 /// With [`GainModel::Auto`] or [`Delight::Auto`] every combination is solved and scored by
 /// how well it predicts each photograph from the others: for photograph `i`, the albedo a
@@ -362,9 +363,8 @@ struct Obs {
 /// first (less correction).
 pub fn solve(
     binding: &Binding,
-    positions: &[nalgebra::Point3<f64>],
+    mesh: &Mesh,
     normals: &[Vector3<f64>],
-    faces: &[[VertexId; 3]],
     opts: &PhotometricOptions,
 ) -> Gains {
     let photos = binding.photos;
@@ -398,7 +398,11 @@ pub fn solve(
     let basis_of: Vec<[f64; TERMS]> = normals.iter().map(basis).collect();
     let used: Vec<bool> = (0..nv).map(|v| binding.views(v).len() >= 2).collect();
     let scored = models.len() * delights.len() > 1;
-    let cell_of = if scored { cells(positions) } else { Vec::new() };
+    let cell_of = if scored {
+        cells(&mesh.positions)
+    } else {
+        Vec::new()
+    };
     let mut candidates = Vec::new();
     let mut solved = Vec::new();
     // The step fit's vertex pairs, found once for every gain model that needs them.
@@ -410,7 +414,7 @@ pub fn solve(
         for &delight in &delights {
             let coeffs = match delight {
                 Delight::Steps => {
-                    let pairs = pairs.get_or_init(|| ring_pairs(faces, nv, RING, &|v| used[v]));
+                    let pairs = pairs.get_or_init(|| ring_pairs(mesh, RING, &|v| used[v]));
                     shading_from_steps(&consensus, &used, &basis_of, pairs, opts.ridge)
                 }
                 Delight::Global => {
@@ -614,8 +618,8 @@ fn fit_model(
     (gains, consensus, rms_before, rms_after)
 }
 
-/// Cauchy scale of the edge fit, as a log brightness step: a step between neighbouring
-/// vertices this large counts half, so the steps of painted edges barely pull.
+/// Least Cauchy scale of the step fit, as a log brightness step: a step between nearby
+/// vertices this far off the light's counts half, so the steps of painted edges barely pull.
 const EDGE_OUTLIER_SCALE: f64 = 0.03;
 
 /// Hops between the two vertices of a pair in the step fit: longer steps carry more of the
@@ -629,28 +633,11 @@ const RING: usize = 2;
 const MAX_SEEDS: usize = 40_000;
 const MAX_PARTNERS: usize = 12;
 
-/// Pairs of vertices `ring` hops apart on the mesh (breadth first), both accepted by `ok`;
+/// Pairs of vertices of `mesh` `ring` hops apart (breadth first), both accepted by `ok`;
 /// each unordered pair once, in a deterministic order.
-fn ring_pairs(
-    faces: &[[VertexId; 3]],
-    nv: usize,
-    ring: usize,
-    ok: &dyn Fn(usize) -> bool,
-) -> Vec<(u32, u32)> {
-    let mut adj: Vec<Vec<u32>> = vec![Vec::new(); nv];
-    for f in faces {
-        for k in 0..3 {
-            let (a, b) = (f[k].0, f[(k + 1) % 3].0);
-            if a != b {
-                adj[a as usize].push(b);
-                adj[b as usize].push(a);
-            }
-        }
-    }
-    for a in &mut adj {
-        a.sort_unstable();
-        a.dedup();
-    }
+fn ring_pairs(mesh: &Mesh, ring: usize, ok: &dyn Fn(usize) -> bool) -> Vec<(u32, u32)> {
+    let adj = one_rings(mesh);
+    let nv = adj.len();
     let seeds: Vec<usize> = (0..nv).filter(|&v| ok(v)).collect();
     let step = seeds.len().div_ceil(MAX_SEEDS).max(1);
     let mut depth = vec![u32::MAX; nv];
@@ -696,14 +683,14 @@ fn ring_pairs(
 
 /// Iteratively reweighted least squares of log brightness steps `d` on differences of the
 /// normal's order-2 basis `x` (constant term excluded), Cauchy weights at a scale from the
-/// residuals' spread (1.4826 x median, at least [`EDGE_OUTLIER_SCALE`]), from `c`; the first
-/// pass is plain least squares. None when the system is singular.
+/// residuals' spread (1.4826 x median, at least [`EDGE_OUTLIER_SCALE`]); the first pass is
+/// plain least squares. None when the system is singular.
 fn robust_step_fit(
     rows: &[(SVector<f64, { TERMS - 1 }>, f64)],
-    mut c: SVector<f64, { TERMS - 1 }>,
     ridge: f64,
 ) -> Option<SVector<f64, { TERMS - 1 }>> {
     const K: usize = TERMS - 1;
+    let mut c = SVector::<f64, K>::zeros();
     for it in 0..8 {
         let scale = if it == 0 {
             f64::INFINITY
@@ -734,10 +721,10 @@ fn robust_step_fit(
 /// The shading common to all photographs, the same for every channel, divided by its mean
 /// over the bound vertices (so that mean brightness is kept).
 ///
-/// It is fitted to the brightness *steps* between neighbouring vertices (Retinex's prior:
-/// shading varies smoothly with the normal, albedo changes in steps): per mesh edge, the log
-/// ratio of its two vertices' consensus grey against the difference of an order-2 field of
-/// the normal, with Cauchy reweighting. Fitting the brightness itself over the normal, as we
+/// It is fitted to the brightness *steps* between nearby vertices (Retinex's prior: shading
+/// varies smoothly with the normal, albedo changes in steps): per pair of `pairs` ([`RING`]
+/// hops apart), the log ratio of its two vertices' consensus grey against the difference of
+/// an order-2 field of the normal, with Cauchy reweighting. Fitting the brightness itself over the normal, as we
 /// did before, reads albedo that follows the normal (a white top over saturated sides) as
 /// light; the steps across such a border are outliers here, and the smooth variation inside
 /// each painted region is what the light leaves.
@@ -767,7 +754,7 @@ fn shading_from_steps(
         (x, (grey(a) / grey(b)).ln())
     };
     let steps: Vec<(SVector<f64, K>, f64)> = edges.iter().map(row).collect();
-    let Some(c) = robust_step_fit(&steps, SVector::zeros(), ridge) else {
+    let Some(c) = robust_step_fit(&steps, ridge) else {
         return [identity; 3];
     };
     // The field exp(sum c_j Y_j) as the linear order-2 field the gains store, over the bound
@@ -941,7 +928,8 @@ fn prediction_loss(
 
 /// Fits `ln raw = ln e_k + ln(1 + max(0, <n, L>)) + ln albedo` to one photograph's samples
 /// (Gauss-Newton on the grey level with Cauchy weights, then a white balance per channel) and
-/// returns its summed Cauchy loss and weight.
+/// returns its summed Cauchy loss, its weight and the spread (standard deviation, log) of the
+/// fitted light's shading over the samples.
 fn lambert_loss(data: &[Scored]) -> (f64, f64, f64) {
     if data.len() < 16 {
         return (0.0, 0.0, 0.0);
@@ -1139,7 +1127,8 @@ mod tests {
     use crate::bind::{Binding, ViewSample};
 
     /// A latitude-longitude sphere: positions (unit, so also the normals) and faces.
-    fn sphere(rings: usize, segments: usize) -> (Vec<nalgebra::Point3<f64>>, Vec<[VertexId; 3]>) {
+    fn sphere(rings: usize, segments: usize) -> Mesh {
+        use crate::mesh::VertexId;
         use std::f64::consts::PI;
         let mut pos = vec![nalgebra::Point3::new(0.0, 0.0, -1.0)];
         for j in 1..rings {
@@ -1171,7 +1160,11 @@ mod tests {
                 }
             }
         }
-        (pos, faces)
+        Mesh {
+            positions: pos,
+            faces,
+            ..Default::default()
+        }
     }
 
     /// Photographs of vertices with albedo `albedo`, each under its own exposure, white balance
@@ -1259,8 +1252,8 @@ mod tests {
     /// and either delighting must leave albedo.
     #[test]
     fn removes_exposure_and_directional_light() {
-        let (pos, faces) = sphere(24, 40);
-        let normals: Vec<Vector3<f64>> = pos.iter().map(|p| p.coords).collect();
+        let mesh = sphere(24, 40);
+        let normals: Vec<Vector3<f64>> = mesh.positions.iter().map(|p| p.coords).collect();
         let n = normals.len();
         let albedo = |v: usize| {
             let t = (v * 7919 % 101) as f32 / 100.0;
@@ -1280,7 +1273,7 @@ mod tests {
                 .sum::<f64>()
                 / n as f64
         };
-        let run = |o: PhotometricOptions| normalise(binding.clone(), &pos, &normals, &faces, &o);
+        let run = |o: PhotometricOptions| normalise(binding.clone(), &mesh, &normals, &o);
         let before = spread(&binding);
         let (exp, _) = run(with(GainModel::Exposure, Delight::Off));
         let (lit, g) = run(with(GainModel::Lighting, Delight::Off));
@@ -1307,9 +1300,8 @@ mod tests {
         // Off changes nothing.
         let off = solve(
             &binding,
-            &pos,
+            &mesh,
             &normals,
-            &faces,
             &with(GainModel::Off, Delight::Off),
         );
         assert!(off.is_identity());
@@ -1320,9 +1312,9 @@ mod tests {
     /// it keeps the cap's contrast. Auto must find that out from the photographs alone.
     #[test]
     fn steps_keep_albedo_that_follows_the_normal() {
-        let (pos, faces) = sphere(32, 48);
-        let normals: Vec<Vector3<f64>> = pos.iter().map(|p| p.coords).collect();
-        let top = |v: usize| pos[v].z > 0.45;
+        let mesh = sphere(32, 48);
+        let normals: Vec<Vector3<f64>> = mesh.positions.iter().map(|p| p.coords).collect();
+        let top = |v: usize| mesh.positions[v].z > 0.45;
         let albedo = |v: usize| {
             let t = 1.0 + 0.1 * ((v * 7919 % 101) as f32 / 100.0 - 0.5);
             let c = if top(v) {
@@ -1333,7 +1325,7 @@ mod tests {
             c.map(|x| x * t)
         };
         let binding = photograph(&normals, &albedo);
-        let run = |o: PhotometricOptions| normalise(binding.clone(), &pos, &normals, &faces, &o);
+        let run = |o: PhotometricOptions| normalise(binding.clone(), &mesh, &normals, &o);
         // Contrast error: the cap over the sides, recovered against true (1 = right).
         let contrast = |b: &Binding| {
             let (_, t, s) = albedo_error(b, &albedo, &top);

@@ -494,8 +494,7 @@ pub fn texture(
         warnings.push(w);
     }
     progress.start("gains", 1);
-    let (binding, gains) =
-        photometric::normalise(binding, &m.positions, &normals, &m.faces, &opts.photometric);
+    let (binding, gains) = photometric::normalise(binding, &m, &normals, &opts.photometric);
     progress.finish();
     stages.push(stage_since("gains", &mut t));
     let (mut resampled, mut merging) = merge::merge(

@@ -744,17 +744,22 @@ pub fn generate_to(
 
 #[cfg(test)]
 mod tests {
+    /// The volume a closed mesh encloses, positive when its faces point outwards.
+    fn signed_volume(m: &crate::mesh::Mesh) -> f64 {
+        (0..m.num_faces() as u32)
+            .map(|f| {
+                let [a, b, c] = m.triangle(crate::mesh::FaceId(f));
+                a.coords.dot(&b.coords.cross(&c.coords)) / 6.0
+            })
+            .sum()
+    }
+
     /// The torus is oriented outwards (positive signed volume), as the renderer, binding and
     /// atlas assume.
     #[test]
     fn dented_torus_faces_outwards() {
         let (m, _) = super::dented_torus(40, 16, (4, 4));
-        let vol: f64 = (0..m.num_faces() as u32)
-            .map(|f| {
-                let [a, b, c] = m.triangle(crate::mesh::FaceId(f));
-                a.coords.dot(&b.coords.cross(&c.coords)) / 6.0
-            })
-            .sum();
+        let vol = signed_volume(&m);
         assert!(vol > 0.0, "signed volume {vol}");
     }
 
@@ -763,12 +768,7 @@ mod tests {
     #[test]
     fn painted_jar_is_closed_and_faces_outwards() {
         let (m, _) = super::painted_jar(24, 12, (4, 4));
-        let vol: f64 = (0..m.num_faces() as u32)
-            .map(|f| {
-                let [a, b, c] = m.triangle(crate::mesh::FaceId(f));
-                a.coords.dot(&b.coords.cross(&c.coords)) / 6.0
-            })
-            .sum();
+        let vol = signed_volume(&m);
         assert!(vol > 0.0, "signed volume {vol}");
         let mut edges = std::collections::HashMap::new();
         for f in &m.faces {
