@@ -416,14 +416,16 @@ fn solve_capped(
     let (fit_verts, rest_verts): (Vec<u32>, Vec<u32>) = if step == 1 {
         (seen_twice, Vec::new())
     } else {
-        let (fit, rest): (Vec<(usize, u32)>, Vec<(usize, u32)>) = seen_twice
-            .into_iter()
-            .enumerate()
-            .partition(|(i, _)| i % step == 0);
-        (
-            fit.into_iter().map(|x| x.1).collect(),
-            rest.into_iter().map(|x| x.1).collect(),
-        )
+        // Every step-th vertex is fitted, the others are not.
+        let (mut fit, mut rest) = (Vec::new(), Vec::new());
+        for (i, v) in seen_twice.into_iter().enumerate() {
+            if i % step == 0 {
+                fit.push(v);
+            } else {
+                rest.push(v);
+            }
+        }
+        (fit, rest)
     };
     let fit = Rows::new(binding, fit_verts);
     let rest = Rows::new(binding, rest_verts);

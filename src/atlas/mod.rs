@@ -123,50 +123,58 @@ fn components(mesh: &Mesh, adj: &Adjacency) -> Vec<u32> {
     comp
 }
 
-/// Flattens one chart, splitting it while its stretch is too high.
+/// Flattens one chart, splitting it while its stretch is too high. The two halves of a split
+/// are flattened side by side (a large chart that splits many times is otherwise one long
+/// serial task at the end of the stage); the result lists the first half's charts before the
+/// second's, a half that is not a disk as its second part's charts before its first's.
 fn flatten_chart(
     mesh: &Mesh,
     adj: &Adjacency,
     chart: Vec<crate::mesh::FaceId>,
     opts: &FlattenOptions,
 ) -> Vec<ChartMap> {
-    let mut todo = vec![chart];
-    let mut out = Vec::new();
-    while let Some(chart) = todo.pop() {
-        let mut map = param::flatten(mesh, &chart);
-        let start = param::stretch(mesh, std::slice::from_ref(&map));
-        // Charts that already flatten almost isometrically need no minimisation, and charts
-        // far above the split threshold are split at once: minimisation brings L2 down by
-        // a factor of at most 1.5 on the meshes we measured (docs/decisions.md).
-        let hopeless = start.l2 > 2.0 * opts.max_chart_stretch && chart.len() > 1;
-        if !hopeless && (start.l2 > opts.skip_below || opts.stretch.view_dir.is_some()) {
-            // Nearly isometric starts converge in a few dozen iterations; the full budget goes
-            // to charts with real stretch to remove.
-            let mut so = opts.stretch;
-            if start.l2 <= opts.light_below {
-                so.iterations = so.iterations.min(60);
-                so.sweeps = so.sweeps.min(2);
-            }
-            optimize::optimize(mesh, &mut map, &so);
+    let mut map = param::flatten(mesh, &chart);
+    let start = param::stretch(mesh, std::slice::from_ref(&map));
+    // Charts that already flatten almost isometrically need no minimisation, and charts
+    // far above the split threshold are split at once: minimisation brings L2 down by
+    // a factor of at most 1.5 on the meshes we measured (docs/decisions.md).
+    let hopeless = start.l2 > 2.0 * opts.max_chart_stretch && chart.len() > 1;
+    if !hopeless && (start.l2 > opts.skip_below || opts.stretch.view_dir.is_some()) {
+        // Nearly isometric starts converge in a few dozen iterations; the full budget goes
+        // to charts with real stretch to remove.
+        let mut so = opts.stretch;
+        if start.l2 <= opts.light_below {
+            so.iterations = so.iterations.min(60);
+            so.sweeps = so.sweeps.min(2);
         }
-        let s = param::stretch(mesh, std::slice::from_ref(&map));
-        if chart.len() > 1 && (s.l2 > opts.max_chart_stretch || s.flipped > 0 || s.zero_area > 0) {
-            let (a, b) = split(adj, &chart);
-            for part in [b, a] {
-                if is_disk(mesh, adj, &part) {
-                    todo.push(part);
-                } else {
-                    // Split halves can be non-disks: split again.
-                    let (x, y) = split(adj, &part);
-                    todo.push(x);
-                    todo.push(y);
-                }
-            }
-        } else {
-            out.push(map);
-        }
+        optimize::optimize(mesh, &mut map, &so);
     }
-    out
+    let s = param::stretch(mesh, std::slice::from_ref(&map));
+    if !(chart.len() > 1 && (s.l2 > opts.max_chart_stretch || s.flipped > 0 || s.zero_area > 0)) {
+        return vec![map];
+    }
+    drop(map);
+    let (a, b) = split(adj, &chart);
+    drop(chart);
+    // Split halves can be non-disks: split again (second part first, as the serial stack
+    // this replaces did, so that the charts and the atlas keep their order and bytes).
+    let parts = |part: Vec<crate::mesh::FaceId>| -> Vec<Vec<crate::mesh::FaceId>> {
+        if is_disk(mesh, adj, &part) {
+            vec![part]
+        } else {
+            let (x, y) = split(adj, &part);
+            vec![y, x]
+        }
+    };
+    let run = |ps: Vec<Vec<crate::mesh::FaceId>>| -> Vec<ChartMap> {
+        use rayon::prelude::*;
+        ps.into_par_iter()
+            .flat_map_iter(|p| flatten_chart(mesh, adj, p, opts))
+            .collect()
+    };
+    let (mut first, second) = rayon::join(|| run(parts(a)), || run(parts(b)));
+    first.extend(second);
+    first
 }
 
 /// One chart's place on the atlas page: its faces (those that own texels, by index) and the

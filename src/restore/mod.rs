@@ -340,20 +340,30 @@ pub fn inpaint(
     };
     report.kappa = kappa;
     let mut low = vec![0f32; w * h * ch];
-    let mut high = vec![0f32; w * h * ch];
-
-    for c in 0..ch {
-        let plane: Vec<f32> = (0..w * h).map(|i| pre[i * ch + c]).collect();
-        let (l, hb) = dct::split(&plane, w, h, kappa);
-        for i in 0..w * h {
-            low[i * ch + c] = l[i];
-            high[i * ch + c] = hb[i];
+    let mut high;
+    if kappa == 0 {
+        // No subband in the low band: it is zero and the high band is the image, exactly what
+        // the transforms would give (the inverse DCT of zeros is zeros), without them. The
+        // automatic rule picks 0 for most atlas crops.
+        high = pre;
+    } else {
+        high = vec![0f32; w * h * ch];
+        for c in 0..ch {
+            let plane: Vec<f32> = (0..w * h).map(|i| pre[i * ch + c]).collect();
+            let (l, hb) = dct::split(&plane, w, h, kappa);
+            for i in 0..w * h {
+                low[i * ch + c] = l[i];
+                high[i * ch + c] = hb[i];
+            }
         }
+        drop(pre);
     }
-    drop(pre);
     report.seconds_split = lap(&mut t);
 
-    diffuse::inpaint(&mut low, w, h, ch, &fill, domain, opts.sweeps);
+    // Diffusing a zero low band leaves it zero.
+    if kappa > 0 {
+        diffuse::inpaint(&mut low, w, h, ch, &fill, domain, opts.sweeps);
+    }
     report.seconds_diffusion = lap(&mut t);
 
     let env = opts
