@@ -134,10 +134,13 @@ pub fn restore_atlas(
     // (continuous across seams, from the 3D neighbourhood) stay. Charts are separate domain
     // components (gutter lies between them), so "reachable from a seen texel" is "in a chart
     // with seen texels".
-    let reach = reached_from_seen(n, &domain, &res.source);
+    let reach = {
+        let seen: Vec<bool> = res.source.iter().map(|&s| s == S::Photos as u8).collect();
+        grid_distance(n, n, &domain, &seen, None)
+    };
     let mut mask: Vec<bool> = (0..n * n)
         .into_par_iter()
-        .map(|i| domain[i] && unseen(res.source[i]) && reach[i])
+        .map(|i| domain[i] && unseen(res.source[i]) && reach[i] != u8::MAX)
         .collect();
     let mut left = Unrestored {
         size: n,
@@ -147,7 +150,7 @@ pub fn restore_atlas(
         feature_scale,
         regions: Vec::new(),
     };
-    for i in (0..n * n).filter(|&i| domain[i] && unseen(res.source[i]) && !reach[i]) {
+    for i in (0..n * n).filter(|&i| domain[i] && unseen(res.source[i]) && reach[i] == u8::MAX) {
         left.unreachable.set(i);
     }
     let texels_left_unreachable = left.unreachable.count() as u64;
@@ -303,33 +306,6 @@ pub fn restore_atlas(
     res.color = image::Rgb32FImage::from_raw(n as u32, n as u32, data).expect("n * n * 3 values");
     crate::resample::refill_gutter(res, gutter_fill);
     Ok((report, left))
-}
-
-/// The unseen texels of `domain` that a path of 4-neighbours inside the domain joins to a seen
-/// texel (`source` of [`TexelSource::Photos`]). The flood runs over unseen texels only, from
-/// those next to a seen one: the seen texels (most of an atlas) are never queued.
-fn reached_from_seen(n: usize, domain: &[bool], source: &[u8]) -> Vec<bool> {
-    use crate::resample::TexelSource as S;
-    let seen = |i: usize| source[i] == S::Photos as u8;
-    let open = |i: usize| domain[i] && !seen(i);
-    let mut reached = vec![false; n * n];
-    let mut front: Vec<u32> = (0..n * n)
-        .into_par_iter()
-        .filter(|&i| open(i) && super::neighbours4(i, n, n).any(seen))
-        .map(|i| i as u32)
-        .collect();
-    for &i in &front {
-        reached[i as usize] = true;
-    }
-    while let Some(i) = front.pop() {
-        for j in super::neighbours4(i as usize, n, n) {
-            if !reached[j] && open(j) {
-                reached[j] = true;
-                front.push(j as u32);
-            }
-        }
-    }
-    reached
 }
 
 /// Texels over which restored atlas values fade into the vertex colours at a chart border.

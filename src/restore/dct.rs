@@ -94,6 +94,11 @@ pub(crate) fn in_low_band(u: usize, v: usize, w: usize, h: usize, kappa: usize) 
 /// Splits one channel into (low, high) with low = inverse DCT of the first `kappa` subbands
 /// and high = image - low.
 pub(crate) fn split(channel: &[f32], w: usize, h: usize, kappa: usize) -> (Vec<f32>, Vec<f32>) {
+    if kappa == 0 {
+        // No subband is low: the transforms would give zeros (the inverse DCT of zeros) and
+        // the image itself, exactly. The automatic rule picks 0 for most atlas crops.
+        return (vec![0.0; channel.len()], channel.to_vec());
+    }
     let dct = Dct2::<f32>::new(w, h);
     let mut c = channel.to_vec();
     dct.forward(&mut c);
