@@ -4,7 +4,8 @@
 //! the turn whose top edge ends lowest, tested against the exact occupancy of the page with the
 //! new chart's footprint dilated by the gutter. Small charts thus fill holes and bays of large
 //! ones. The density is the largest that fits one page (bisection), or fixed, with as many
-//! pages as needed.
+//! pages as needed. A page keeps its free texels as intervals per row, so a row is tested for
+//! every x at once; per-band summaries skip rows where a chart cannot fit.
 
 use super::param::ChartMap;
 use crate::mesh::{Mesh, UvMap};
@@ -274,67 +275,94 @@ fn mask(foot: &[bool], w: usize, h: usize, offset: Vector2<f64>, rot: u8, gutter
     }
 }
 
-/// Texels per block of a page row in [`Page::block_max`].
-const BLOCK: usize = 32;
-
-/// One atlas page: occupancy and, per texel, the length of the free (positive) or occupied
-/// (negative) run that starts there, so the search skips whole runs; per row, the longest free
-/// run, and per block of [`BLOCK`] texels of a row the longest free run starting in it, so the
-/// search skips whole blocks of a fragmented row.
+/// One atlas page: per row, its free texels as sorted, disjoint half-open intervals, and the
+/// longest of them. A mask's valid positions in one row are then a few x ranges, so a row of
+/// the page is tested for every x at once by intersecting range lists, instead of texel by
+/// texel through a page-sized array (which missed the cache on every probe).
 struct Page {
     size: usize,
-    occ: Vec<bool>,
-    run: Vec<i32>,
+    free: Vec<Vec<(u32, u32)>>,
     max_free: Vec<u32>,
-    /// `size.div_ceil(BLOCK)` values per row.
-    block_max: Vec<u32>,
+    /// For each band height `BANDS[l]`, per aligned band of that many rows, the longest run
+    /// free in all of them.
+    band_free: Vec<Vec<u32>>,
+}
+
+/// Rows per band in [`Page::band_free`]. Any window of `2 * B - 1` rows holds a whole band of
+/// `B`, so a span common to that many rows of a mask must lie in a run free across a band.
+const BANDS: [usize; 2] = [4, 16];
+
+/// The longest run free in every row of `rows`.
+fn common_free(rows: &[Vec<(u32, u32)>]) -> u32 {
+    let mut cur = rows[0].clone();
+    let mut next = Vec::new();
+    for row in &rows[1..] {
+        next.clear();
+        let (mut i, mut j) = (0, 0);
+        while i < cur.len() && j < row.len() {
+            let (l, h) = (cur[i].0.max(row[j].0), cur[i].1.min(row[j].1));
+            if l < h {
+                next.push((l, h));
+            }
+            if cur[i].1 < row[j].1 {
+                i += 1;
+            } else {
+                j += 1;
+            }
+        }
+        std::mem::swap(&mut cur, &mut next);
+        if cur.is_empty() {
+            return 0;
+        }
+    }
+    cur.iter().map(|iv| iv.1 - iv.0).max().unwrap_or(0)
+}
+
+/// Intersects the sorted, disjoint inclusive ranges `cur` with the x positions where a span of
+/// `need` texels starting `a` texels right of x lies inside one free interval of `row`, writing
+/// the result to `out`.
+fn intersect(cur: &[(u32, u32)], row: &[(u32, u32)], a: u32, need: u32, out: &mut Vec<(u32, u32)>) {
+    out.clear();
+    let (Some(&(first, _)), Some(&(_, last))) = (cur.first(), cur.last()) else {
+        return;
+    };
+    // Only the intervals that can hold a span starting in [first, last] matter.
+    let from = row.partition_point(|iv| iv.1 < first + a + need);
+    let mut k = 0;
+    for &(s, e) in &row[from..] {
+        if s > last + a {
+            break;
+        }
+        if e - s < need || e < a + need {
+            continue;
+        }
+        // x with s <= x + a and x + a + need <= e.
+        let (lo, hi) = (s.saturating_sub(a), e - need - a);
+        if lo > hi {
+            continue;
+        }
+        while k < cur.len() && cur[k].1 < lo {
+            k += 1;
+        }
+        let mut j = k;
+        while j < cur.len() && cur[j].0 <= hi {
+            let (l, h) = (cur[j].0.max(lo), cur[j].1.min(hi));
+            if l <= h {
+                out.push((l, h));
+            }
+            j += 1;
+        }
+    }
 }
 
 impl Page {
     fn new(size: usize) -> Page {
-        let mut run = vec![0i32; size * size];
-        for row in run.chunks_mut(size) {
-            for (x, r) in row.iter_mut().enumerate() {
-                *r = (size - x) as i32;
-            }
-        }
-        let blocks = size.div_ceil(BLOCK);
-        let block_max = (0..size)
-            .flat_map(|_| (0..blocks).map(|b| (size - b * BLOCK) as u32))
-            .collect();
         Page {
             size,
-            occ: vec![false; size * size],
-            run,
+            free: vec![vec![(0, size as u32)]; size],
             max_free: vec![size as u32; size],
-            block_max,
+            band_free: BANDS.iter().map(|&b| vec![size as u32; size / b]).collect(),
         }
-    }
-
-    /// The first texel `x >= from` of row `y` where a free run of at least `need` starts.
-    fn next_fit(&self, y: usize, from: usize, need: usize) -> Option<usize> {
-        let n = self.size;
-        let blocks = n.div_ceil(BLOCK);
-        let (run, bmax) = (
-            &self.run[y * n..y * n + n],
-            &self.block_max[y * blocks..y * blocks + blocks],
-        );
-        let mut x = from;
-        while x < n {
-            let b = x / BLOCK;
-            if (bmax[b] as usize) < need {
-                x = (b + 1) * BLOCK;
-                continue;
-            }
-            let v = run[x];
-            if v > 0 && v as usize >= need {
-                return Some(x);
-            }
-            // Inside a free run every later start is shorter: jump to its end; an occupied run:
-            // past it.
-            x += v.unsigned_abs() as usize;
-        }
-        None
     }
 
     /// The first position (row-major, top-left corner of the mask's box) where the dilated
@@ -345,98 +373,135 @@ impl Page {
         if m.w > n || m.h > n {
             return None;
         }
-        let rows: Vec<(usize, usize, usize)> = m
+        let rows: Vec<(usize, u32, u32)> = m
             .spans
             .iter()
             .enumerate()
-            .filter_map(|(r, s)| s.map(|(a, b)| (r, a as usize, (b - a + 1) as usize)))
+            .filter_map(|(r, s)| s.map(|(a, b)| (r, a, b - a + 1)))
             .collect();
-        // The widest row leads: candidates are where it fits, found through the block index.
-        let Some(&(pr, pa, pneed)) = rows.iter().max_by_key(|r| (r.2, Reverse(r.0))) else {
+        // The widest row leads: its free intervals give the first candidate ranges.
+        let Some(&(pr, _, _)) = rows.iter().max_by_key(|r| (r.2, Reverse(r.0))) else {
             return Some((0, 0));
         };
-        let mut first = 0;
+        // Rows far apart fail for different reasons: test them in bisection order after the
+        // widest, and move a row that empties the candidates to the front.
+        let mut order: Vec<usize> = Vec::with_capacity(rows.len());
+        let lead = rows.iter().position(|r| r.0 == pr).unwrap_or(0);
+        order.push(lead);
+        let mut seen = vec![false; rows.len()];
+        seen[lead] = true;
+        let mut step = rows.len().next_power_of_two();
+        while step >= 1 {
+            for i in (0..rows.len()).step_by(step) {
+                if !seen[i] {
+                    seen[i] = true;
+                    order.push(i);
+                }
+            }
+            if step == 1 {
+                break;
+            }
+            step /= 2;
+        }
+        if !seen[rows.len() - 1] {
+            order.push(rows.len() - 1);
+        }
+        // Per band height, the widest span common to 2 * B - 1 consecutive rows of the mask: a
+        // cheap necessary test per row of the page.
+        let cores: Vec<(usize, usize, u32)> = BANDS
+            .iter()
+            .enumerate()
+            .filter(|&(_, &b)| m.spans.len() >= 2 * b - 1)
+            .filter_map(|(l, &b)| {
+                let win = 2 * b - 1;
+                (0..=m.spans.len() - win)
+                    .map(|r0| {
+                        let c = m.spans[r0..r0 + win]
+                            .iter()
+                            .try_fold((0u32, u32::MAX), |acc, s| {
+                                s.map(|(a, b)| (acc.0.max(a), acc.1.min(b)))
+                            });
+                        (l, r0, c.map_or(0, |(a, b)| (b + 1).saturating_sub(a)))
+                    })
+                    .max_by_key(|&(_, r0, len)| (len, Reverse(r0)))
+                    .filter(|c| c.2 > 0)
+            })
+            .collect();
+        let full = [(0u32, (n - m.w) as u32)];
+        let (mut cur, mut next) = (Vec::new(), Vec::new());
+        // The row that emptied the candidates last goes first at the next y: neighbouring rows
+        // of the page look alike.
         for y in 0..=n - m.h {
             if y + m.h > bottom.load(Ordering::Relaxed) {
                 return None;
             }
-            if rows
+            if cores
                 .iter()
-                .any(|&(r, _, need)| (self.max_free[y + r] as usize) < need)
+                .any(|&(l, r0, len)| self.band_free[l][(y + r0).div_ceil(BANDS[l])] < len)
+                || rows.iter().any(|&(r, _, need)| self.max_free[y + r] < need)
             {
                 continue;
             }
-            let mut x = 0;
-            'scan: while x + m.w <= n {
-                let Some(c) = self.next_fit(y + pr, x + pa, pneed) else {
-                    break;
-                };
-                x = c - pa;
-                if x + m.w > n {
+            cur.clear();
+            cur.extend_from_slice(&full);
+            for k in 0..order.len() {
+                let (r, a, need) = rows[order[k]];
+                intersect(&cur, &self.free[y + r], a, need, &mut next);
+                std::mem::swap(&mut cur, &mut next);
+                if cur.is_empty() {
+                    order[..=k].rotate_right(1);
                     break;
                 }
-                for k in 0..rows.len() {
-                    let (r, a, need) = rows[(first + k) % rows.len()];
-                    let v = self.run[(y + r) * n + x + a];
-                    if v as usize >= need && v > 0 {
-                        continue;
-                    }
-                    first = (first + k) % rows.len();
-                    // A free run too short: every shift that keeps this row's span over the
-                    // occupied texel ending it fails too. An occupied run: skip past it.
-                    x += if v > 0 { v as usize + 1 } else { (-v) as usize };
-                    continue 'scan;
-                }
-                return Some((x, y));
+            }
+            if let Some(&(x, _)) = cur.first() {
+                return Some((x as usize, y));
             }
         }
         None
     }
 
-    /// Marks the footprint of `m` at `(x, y)` occupied and updates the runs of its rows.
+    /// Marks the footprint of `m` at `(x, y)` occupied.
     fn place(&mut self, m: &Mask, x: usize, y: usize) {
-        let n = self.size;
-        let blocks = n.div_ceil(BLOCK);
-        let mut row_end: Vec<Option<(usize, usize)>> = vec![None; m.h];
         for &(r, a, b) in &m.runs {
-            let row = (y + r as usize) * n;
-            for c in a as usize..=b as usize {
-                self.occ[row + x + c] = true;
+            let row = &mut self.free[y + r as usize];
+            let (a, b) = (x as u32 + a, x as u32 + b + 1);
+            // The free intervals meeting [a, b) are cut; a placed footprint lies in free space
+            // (the dilated mask was tested), but a cut that spans several is handled anyway.
+            let i = row.partition_point(|iv| iv.1 <= a);
+            let j = row.partition_point(|iv| iv.0 < b);
+            if i >= j {
+                continue;
             }
-            let e = &mut row_end[r as usize];
-            let (a, b) = (x + a as usize, x + b as usize);
-            *e = Some(e.map_or((a, b), |(l, h)| (l.min(a), h.max(b))));
+            let mut keep = Vec::with_capacity(2);
+            if row[i].0 < a {
+                keep.push((row[i].0, a));
+            }
+            if row[j - 1].1 > b {
+                keep.push((b, row[j - 1].1));
+            }
+            row.splice(i..j, keep);
         }
-        for (r, e) in row_end.iter().enumerate() {
-            let Some((first, last)) = *e else { continue };
-            let row = (y + r) * n;
-            let (occ, run) = (&self.occ[row..row + n], &mut self.run[row..row + n]);
-            // Runs depend on the texel to the right only, so they change from `last` leftwards
-            // until a recomputed value left of the placement equals the old one.
-            let mut lowest = 0;
-            for c in (0..=last).rev() {
-                let next = if c + 1 < n { run[c + 1] } else { 0 };
-                let v = match (occ[c], c + 1 < n && occ[c + 1]) {
-                    (true, true) => next - 1,
-                    (true, false) => -1,
-                    (false, false) => next.max(0) + 1,
-                    (false, true) => 1,
-                };
-                if c < first && run[c] == v {
-                    lowest = c + 1;
-                    break;
-                }
-                run[c] = v;
-            }
-            let bmax = &mut self.block_max[(y + r) * blocks..(y + r + 1) * blocks];
-            for b in lowest / BLOCK..=last / BLOCK {
-                bmax[b] = run[b * BLOCK..((b + 1) * BLOCK).min(n)]
+        let mut last = usize::MAX;
+        for &(r, _, _) in &m.runs {
+            if r as usize != last {
+                last = r as usize;
+                let row = y + last;
+                self.max_free[row] = self.free[row]
                     .iter()
-                    .map(|&v| v.max(0) as u32)
+                    .map(|iv| iv.1 - iv.0)
                     .max()
                     .unwrap_or(0);
             }
-            self.max_free[y + r] = bmax.iter().copied().max().unwrap_or(0);
+        }
+        for (l, &band) in BANDS.iter().enumerate() {
+            let bands = &mut self.band_free[l];
+            if bands.is_empty() {
+                continue;
+            }
+            let (top, bottom) = (y / band, ((y + m.h) / band).min(bands.len() - 1));
+            for (b, v) in bands.iter_mut().enumerate().take(bottom + 1).skip(top) {
+                *v = common_free(&self.free[b * band..(b + 1) * band]);
+            }
         }
     }
 }
@@ -659,8 +724,29 @@ pub fn pack(
                     true,
                 )
             };
-            let mut found: Option<(f64, (Vec<Placement>, u32))> = None;
+            // Only the last level's placements are kept; coarser levels bracket the density.
+            let mut found: Option<(f64, Option<(Vec<Placement>, u32)>)> = None;
             for &level in &levels {
+                if let (Some((s, _)), true) = (&found, level > 0) {
+                    // The coarser answer nearly always fits here too: assume it and bisect the
+                    // window above it first. A packing that fits costs the most, so this saves
+                    // the check of the coarser answer whenever a point above it fits.
+                    let (mut lo, mut hi) = (*s, *s * 1.04);
+                    let mut above = false;
+                    while hi / lo > 1.004 {
+                        let mid = (lo * hi).sqrt();
+                        if at(level, mid).is_some() {
+                            lo = mid;
+                            above = true;
+                        } else {
+                            hi = mid;
+                        }
+                    }
+                    if above {
+                        found = Some((lo, None));
+                        continue;
+                    }
+                }
                 let (mut lo, mut best, mut hi) = match found.take() {
                     None => {
                         let mut s = upper * 0.8;
@@ -676,7 +762,8 @@ pub fn pack(
                         let hi = if lo == upper * 0.8 { upper } else { lo * 1.15 };
                         (lo, best, hi)
                     }
-                    Some((mut s, _)) => {
+                    Some((s0, _)) => {
+                        let mut s = s0;
                         let mut fit = None;
                         for _ in 0..200 {
                             if let Some(r) = at(level, s) {
@@ -686,7 +773,9 @@ pub fn pack(
                             s /= 1.01;
                         }
                         let Some((lo, best)) = fit else { break };
-                        (lo, best, lo * if level == 0 { 1.0 } else { 1.04 })
+                        // Above an answer that fitted at once, every point was tried already.
+                        let window = if level == 0 || lo == s0 { 1.0 } else { 1.04 };
+                        (lo, best, lo * window)
                     }
                 };
                 while hi / lo > 1.004 {
@@ -699,9 +788,9 @@ pub fn pack(
                         None => hi = mid,
                     }
                 }
-                found = Some((lo, best));
+                found = Some((lo, Some(best)));
             }
-            let Some((lo, (placements, pages))) = found else {
+            let Some((lo, Some((placements, pages)))) = found else {
                 return Err(crate::Error::option(
                     "size",
                     format!(
