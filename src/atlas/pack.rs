@@ -519,6 +519,9 @@ struct Placement {
     offset: Vector2<f64>,
 }
 
+/// A packing: where each chart went, and the number of pages.
+type Packing = (Vec<Placement>, u32);
+
 /// The rotations tried for every chart (quarter turns of its minimum-area rectangle).
 const ROTATIONS: [u8; 4] = [0, 1, 2, 3];
 
@@ -530,7 +533,7 @@ fn attempt(
     size: usize,
     gutter: usize,
     one_page: bool,
-) -> Option<(Vec<Placement>, u32)> {
+) -> Option<Packing> {
     use rayon::prelude::*;
     // Masks are made in batches in packing order: an attempt that fails (most of a density
     // search) stops early and does not rasterise the charts it never reached.
@@ -725,7 +728,7 @@ pub fn pack(
                 )
             };
             // Only the last level's placements are kept; coarser levels bracket the density.
-            let mut found: Option<(f64, Option<(Vec<Placement>, u32)>)> = None;
+            let mut found: Option<(f64, Option<Packing>)> = None;
             for &level in &levels {
                 if let (Some((s, _)), true) = (&found, level > 0) {
                     // The coarser answer nearly always fits here too: assume it and bisect the
