@@ -899,3 +899,89 @@ pub fn coverage(uv: &UvMap, face_chart: &[u32], size: u32, pages: u32) -> Vec<u8
     }
     count
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::SplitMix64;
+
+    /// The first position (row-major) where every texel of the mask's dilated spans is free
+    /// and the mask's box lies in the page, found texel by texel on a plain grid.
+    fn first_fit(occ: &[bool], n: usize, m: &Mask) -> Option<(usize, usize)> {
+        if m.w > n || m.h > n {
+            return None;
+        }
+        (0..=n - m.h)
+            .flat_map(|y| (0..=n - m.w).map(move |x| (x, y)))
+            .find(|&(x, y)| {
+                m.spans.iter().enumerate().all(|(r, s)| {
+                    s.is_none_or(|(a, b)| {
+                        (a as usize..=b as usize).all(|c| !occ[(y + r) * n + x + c])
+                    })
+                })
+            })
+    }
+
+    /// A random blob: a footprint grown from its centre, so that rows have holes and bays.
+    fn blob(rng: &mut SplitMix64, gutter: usize) -> (Vec<bool>, usize, usize) {
+        let (w, h) = (
+            2 * gutter + 1 + (rng.next_u64() % 14) as usize,
+            2 * gutter + 1 + (rng.next_u64() % 14) as usize,
+        );
+        let mut foot = vec![false; w * h];
+        let (mut x, mut y) = (w / 2, h / 2);
+        for _ in 0..(w * h) {
+            foot[y * w + x] = true;
+            match rng.next_u64() % 4 {
+                0 if x > gutter => x -= 1,
+                1 if x + gutter + 1 < w => x += 1,
+                2 if y > gutter => y -= 1,
+                3 if y + gutter + 1 < h => y += 1,
+                _ => {}
+            }
+        }
+        (foot, w, h)
+    }
+
+    #[test]
+    fn interval_page_finds_the_same_first_fit_as_a_texel_grid() {
+        // Every find is checked against the texel-by-texel search on a grid that the same
+        // placements filled: the intervals, the move-to-front row order and the band
+        // summaries may only make the search faster, never change where a chart goes.
+        let mut rng = SplitMix64::new(7);
+        for (n, gutter) in [(48usize, 1usize), (64, 2), (80, 0)] {
+            let mut page = Page::new(n);
+            let mut occ = vec![false; n * n];
+            let (mut placed, mut full) = (0, 0);
+            for _ in 0..400 {
+                let (foot, w, h) = blob(&mut rng, gutter);
+                let rot = (rng.next_u64() % 4) as u8;
+                let m = mask(&foot, w, h, Vector2::zeros(), rot, gutter);
+                let want = first_fit(&occ, n, &m);
+                let got = page.find(&m, &AtomicUsize::new(usize::MAX));
+                assert_eq!(got, want, "page {n}, mask {}x{} turned {rot}", m.w, m.h);
+                let Some((x, y)) = got else {
+                    full += 1;
+                    continue;
+                };
+                // The footprint is inside its dilated spans, so it lands on free texels only.
+                for &(r, a, b) in &m.runs {
+                    for c in a..=b {
+                        let i = (y + r as usize) * n + x + c as usize;
+                        assert!(!occ[i]);
+                        occ[i] = true;
+                    }
+                }
+                page.place(&m, x, y);
+                placed += 1;
+            }
+            // Both outcomes were exercised: the page filled up.
+            assert!(placed > 10 && full > 10, "placed {placed}, refused {full}");
+            for y in 0..n {
+                let free: usize = page.free[y].iter().map(|iv| (iv.1 - iv.0) as usize).sum();
+                let want = occ[y * n..(y + 1) * n].iter().filter(|&&o| !o).count();
+                assert_eq!(free, want, "row {y} of page {n}");
+            }
+        }
+    }
+}
