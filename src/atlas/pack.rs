@@ -281,7 +281,9 @@ fn mask(foot: &[bool], w: usize, h: usize, offset: Vector2<f64>, rot: u8, gutter
 /// texel through a page-sized array (which missed the cache on every probe).
 struct Page {
     size: usize,
+    /// Per row, the free texels as sorted, disjoint half-open intervals `[start, end)`.
     free: Vec<Vec<(u32, u32)>>,
+    /// Per row, the longest free interval.
     max_free: Vec<u32>,
     /// For each band height `BANDS[l]`, per aligned band of that many rows, the longest run
     /// free in all of them.
@@ -403,9 +405,6 @@ impl Page {
             }
             step /= 2;
         }
-        if !seen[rows.len() - 1] {
-            order.push(rows.len() - 1);
-        }
         // Per band height, the widest span common to 2 * B - 1 consecutive rows of the mask: a
         // cheap necessary test per row of the page.
         let cores: Vec<(usize, usize, u32)> = BANDS
@@ -429,8 +428,6 @@ impl Page {
             .collect();
         let full = [(0u32, (n - m.w) as u32)];
         let (mut cur, mut next) = (Vec::new(), Vec::new());
-        // The row that emptied the candidates last goes first at the next y: neighbouring rows
-        // of the page look alike.
         for y in 0..=n - m.h {
             if y + m.h > bottom.load(Ordering::Relaxed) {
                 return None;
@@ -449,6 +446,8 @@ impl Page {
                 intersect(&cur, &self.free[y + r], a, need, &mut next);
                 std::mem::swap(&mut cur, &mut next);
                 if cur.is_empty() {
+                    // This row goes first at the next y: neighbouring rows of the page look
+                    // alike.
                     order[..=k].rotate_right(1);
                     break;
                 }
