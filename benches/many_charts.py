@@ -7,6 +7,7 @@ utilisation from its report.
     cargo build --release
     pip install numpy
     python3 benches/many_charts.py 1000:4096 3000:4096 10000:2048   # charts:atlas size ...
+    SCANTEX=/path/to/old/scantex python3 benches/many_charts.py ...  # the same, another binary
 
 Issue 23 asks for hundreds of charts packed in well under a second and 10k in seconds.
 """
@@ -20,7 +21,8 @@ import time
 import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-BIN = os.path.join(ROOT, "target", "release", "scantex")
+# SCANTEX=<binary> times another build (a previous release) on the same meshes.
+BIN = os.environ.get("SCANTEX", os.path.join(ROOT, "target", "release", "scantex"))
 
 
 def patches(path, n, seed=3):

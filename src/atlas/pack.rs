@@ -381,14 +381,17 @@ impl Page {
             .enumerate()
             .filter_map(|(r, s)| s.map(|(a, b)| (r, a, b - a + 1)))
             .collect();
-        // The widest row leads: its free intervals give the first candidate ranges.
-        let Some(&(pr, _, _)) = rows.iter().max_by_key(|r| (r.2, Reverse(r.0))) else {
+        // The widest row is tested first; rows far apart fail for different reasons, so the
+        // others follow in bisection order, and a row that empties the candidates moves to the
+        // front.
+        let Some((lead, _)) = rows
+            .iter()
+            .enumerate()
+            .max_by_key(|(_, r)| (r.2, Reverse(r.0)))
+        else {
             return Some((0, 0));
         };
-        // Rows far apart fail for different reasons: test them in bisection order after the
-        // widest, and move a row that empties the candidates to the front.
         let mut order: Vec<usize> = Vec::with_capacity(rows.len());
-        let lead = rows.iter().position(|r| r.0 == pr).unwrap_or(0);
         order.push(lead);
         let mut seen = vec![false; rows.len()];
         seen[lead] = true;
