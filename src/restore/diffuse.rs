@@ -306,35 +306,6 @@ fn box_blur(v: &mut [f32], w: usize, h: usize, r: usize) {
     }
 }
 
-/// Normalised blur: three box passes of radius `r` over the pixels with `weight` 1, each
-/// channel divided by the blurred weight (0 where no weighted pixel is in reach).
-pub(crate) fn masked_blur(
-    data: &[f32],
-    w: usize,
-    h: usize,
-    ch: usize,
-    weight: &[bool],
-    r: usize,
-) -> Vec<f32> {
-    let mut wt: Vec<f32> = weight.iter().map(|&b| b as u8 as f32).collect();
-    for _ in 0..3 {
-        box_blur(&mut wt, w, h, r);
-    }
-    let mut out = vec![0f32; w * h * ch];
-    for c in 0..ch {
-        let mut v: Vec<f32> = (0..w * h)
-            .map(|i| if weight[i] { data[i * ch + c] } else { 0.0 })
-            .collect();
-        for _ in 0..3 {
-            box_blur(&mut v, w, h, r);
-        }
-        for i in 0..w * h {
-            out[i * ch + c] = if wt[i] > 1e-6 { v[i] / wt[i] } else { 0.0 };
-        }
-    }
-    out
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -156,12 +156,66 @@ const CAUSAL: [(i32, i32); 12] = [
 ];
 
 /// Offset `d` of the causal kernel in orientation `o` (0..8: the symmetries of the square).
-fn orient(o: usize, d: (i32, i32)) -> (i32, i32) {
+const fn orient(o: usize, d: (i32, i32)) -> (i32, i32) {
     let (a, b) = if o & 4 != 0 { (d.1, d.0) } else { d };
     (
         if o & 1 != 0 { -a } else { a },
         if o & 2 != 0 { -b } else { b },
     )
+}
+
+/// One orientation's kernel offsets and their bounding box (see [`KERNELS`]).
+type Kernel = ([(i32, i32); 12], [i32; 4]);
+
+/// The causal kernel's offsets in each orientation, and their bounding box (min x, min y,
+/// max x, max y): a texel's kernel lies inside the level when the box does, so finding its
+/// twelve texels is one bounds test and twelve additions instead of twelve divisions.
+const KERNELS: [Kernel; 8] = {
+    let mut out: [Kernel; 8] = [([(0, 0); 12], [0; 4]); 8];
+    let mut o = 0;
+    while o < 8 {
+        let mut n = 0;
+        let mut b = [i32::MAX, i32::MAX, i32::MIN, i32::MIN];
+        while n < 12 {
+            let d = orient(o, CAUSAL[n]);
+            out[o].0[n] = d;
+            if d.0 < b[0] {
+                b[0] = d.0;
+            }
+            if d.1 < b[1] {
+                b[1] = d.1;
+            }
+            if d.0 > b[2] {
+                b[2] = d.0;
+            }
+            if d.1 > b[3] {
+                b[3] = d.1;
+            }
+            n += 1;
+        }
+        out[o].1 = b;
+        o += 1;
+    }
+    out
+};
+
+/// The texels of the causal kernel of `i` in orientation `o` ([`CAUSAL`] order), if all lie
+/// inside the level.
+#[inline]
+fn kernel(l: &Level, i: usize, o: usize) -> Option<[usize; 12]> {
+    let (x, y) = ((i % l.w) as i64, (i / l.w) as i64);
+    let (k, b) = &KERNELS[o];
+    if x + (b[0] as i64) < 0
+        || y + (b[1] as i64) < 0
+        || x + b[2] as i64 >= l.w as i64
+        || y + b[3] as i64 >= l.h as i64
+    {
+        return None;
+    }
+    let w = l.w as i64;
+    Some(std::array::from_fn(|n| {
+        (i as i64 + k[n].1 as i64 * w + k[n].0 as i64) as usize
+    }))
 }
 
 /// How nearest neighbours are found.
@@ -273,17 +327,13 @@ fn offset(l: &Level, idx: usize, d: (i32, i32)) -> Option<usize> {
 
 /// Whether `q` can be a source for orientation `o`: it and its causal kernel are known.
 fn valid_source(l: &Level, q: usize, o: usize) -> bool {
-    l.known(q)
-        && CAUSAL
-            .iter()
-            .all(|&d| offset(l, q, orient(o, d)).is_some_and(|j| l.known(j)))
+    l.known(q) && kernel(l, q, o).is_some_and(|k| k.iter().all(|&j| l.known(j)))
 }
 
 /// Full neighbourhood vector of source texel `q` for orientation `o`.
 fn source_vector(l: &Level, coarse: &[Level], q: usize, o: usize, ch: usize, out: &mut Vec<f32>) {
     out.clear();
-    for &d in &CAUSAL {
-        let j = offset(l, q, orient(o, d)).expect("valid source");
+    for j in kernel(l, q, o).expect("valid source") {
         out.extend_from_slice(&l.data[j * ch..j * ch + ch]);
     }
     context(coarse, q % l.w, q / l.w, ch, out);
@@ -599,8 +649,8 @@ fn fill_hole(
     for &(t, o) in order {
         let o = o as usize;
         query.clear();
-        for &d in &CAUSAL {
-            let j = offset(l, t, orient(o, d)).expect("scheduled kernels fit");
+        let kt = kernel(l, t, o).expect("scheduled kernels fit");
+        for &j in &kt {
             if slot[j] != u32::MAX {
                 query.extend_from_slice(&vals[slot[j] as usize][..ch]);
             } else {
@@ -633,9 +683,7 @@ fn fill_hole(
         // Coherent neighbours usually propose the same texel: score each candidate once.
         let mut tried = [u32::MAX; 12];
         let mut ntried = 0;
-        for &d in &CAUSAL {
-            let od = orient(o, d);
-            let j = offset(l, t, od).expect("fits");
+        for (&j, &od) in kt.iter().zip(&KERNELS[o].0) {
             if slot[j] == u32::MAX || !done[slot[j] as usize] {
                 continue;
             }
