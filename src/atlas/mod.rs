@@ -76,8 +76,12 @@ pub fn flatten_all_with(mesh: &Mesh, adj: &Adjacency, opts: &FlattenOptions) -> 
         });
         groups[i].1.push(c);
     }
+    // One task per group and per chart (`with_max_len(1)`): rayon's adaptive split hands
+    // each core a run of items and cannot take back part of a run, so a run holding the
+    // largest charts leaves the other core idle.
     let per_group: Vec<Vec<ChartMap>> = groups
         .into_par_iter()
+        .with_max_len(1)
         .map(|(_, group)| {
             if group.len() > 1 {
                 let whole: Vec<crate::mesh::FaceId> = group.iter().flatten().copied().collect();
@@ -93,6 +97,7 @@ pub fn flatten_all_with(mesh: &Mesh, adj: &Adjacency, opts: &FlattenOptions) -> 
             // Charts of one component in parallel too: a scan is often one big component.
             group
                 .into_par_iter()
+                .with_max_len(1)
                 .flat_map_iter(|c| flatten_chart(mesh, adj, c, opts))
                 .collect()
         })
@@ -169,6 +174,7 @@ fn flatten_chart(
     let run = |ps: Vec<Vec<crate::mesh::FaceId>>| -> Vec<ChartMap> {
         use rayon::prelude::*;
         ps.into_par_iter()
+            .with_max_len(1)
             .flat_map_iter(|p| flatten_chart(mesh, adj, p, opts))
             .collect()
     };

@@ -201,9 +201,19 @@ pub fn restore_atlas(
     // in parallel on the atlas as it came from the merge.
     let crops = crops(n, &comps, opts.margin.max(16) + 8, MAX_CROP_AREA);
     let wall = Instant::now();
-    let results: Vec<(Vec<Fill>, RestoreReport)> = crops
+    // Largest crops first, one task each: rayon's adaptive split would hand a core a run of
+    // crops, and the largest crop started last left the other core idle. The results go back
+    // to the crops' order.
+    let mut order: Vec<usize> = (0..crops.len()).collect();
+    order.sort_by_key(|&k| {
+        let r = crops[k].rect;
+        std::cmp::Reverse((r.2 - r.0) * (r.3 - r.1))
+    });
+    let mut results: Vec<(usize, (Vec<Fill>, RestoreReport))> = order
         .par_iter()
-        .map(|crop| {
+        .with_max_len(1)
+        .map(|&k| {
+            let crop = &crops[k];
             let r = crop.rect;
             let (cw, chh) = (r.2 - r.0, r.3 - r.1);
             let idx = |x: usize, y: usize| (r.1 + y) * n + r.0 + x;
@@ -238,16 +248,17 @@ pub fn restore_atlas(
                     (idx(j % cw, j / cw), c)
                 })
                 .collect();
-            Ok((fills, rep))
+            Ok((k, (fills, rep)))
         })
         .collect::<Result<_>>()?;
+    results.sort_unstable_by_key(|r| r.0);
     let mut report = RestoreReport {
         method: opts.method,
         windows: crops.len(),
         ..Default::default()
     };
     let mut kappas = Vec::new();
-    for (fills, rep) in results {
+    for (_, (fills, rep)) in results {
         for (i, c) in fills {
             let w = f32::from(to_border[i].min(BORDER_TAPER as u8)) / BORDER_TAPER as f32;
             for (k, &v) in c.iter().enumerate() {

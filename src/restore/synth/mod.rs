@@ -434,12 +434,16 @@ fn synthesize_level(
     // Windows can grow into one another after merging; that only means two sets of trees
     // share source texels, which is harmless.
     st.windows = clusters.len();
+    // One task per cluster, hole and orientation (`with_max_len(1)`): their sizes differ by
+    // orders of magnitude, and rayon's adaptive split would hand a core a run of them.
     let per_cluster: Vec<(Vec<Fill>, LevelStats)> = clusters
         .par_iter()
+        .with_max_len(1)
         .enumerate()
         .map(|(ci, (rect, members))| {
             let scheds: Vec<Schedule> = members
                 .par_iter()
+                .with_max_len(1)
                 .map(|&k| schedule(l, &comps[k], &dist, &slot))
                 .collect();
             let mut used = [0usize; 8];
@@ -450,6 +454,7 @@ fn synthesize_level(
             }
             let sources: Vec<Option<Sources>> = (0..8)
                 .into_par_iter()
+                .with_max_len(1)
                 .map(|o| {
                     (used[o] > 0).then(|| {
                         let cap = source_cap(p.max_sources, used[o]);
@@ -466,6 +471,7 @@ fn synthesize_level(
             let fills: Vec<(Vec<Fill>, u64, u64)> = members
                 .par_iter()
                 .zip(&scheds)
+                .with_max_len(1)
                 .map(|(&k, sched)| {
                     fill_hole(l, coarse, &comps[k], &slot, sched, &sources, rect, i, ch, p)
                 })
