@@ -18,6 +18,7 @@ use crate::error::MeshElement;
 use crate::mesh::{Mesh, UnionFind};
 use nalgebra::Vector2;
 use param::ChartMap;
+use rustc_hash::FxHashMap;
 use segment::{is_disk, split, Adjacency, SegmentOptions};
 use texels::TexelMap;
 
@@ -67,7 +68,7 @@ pub fn flatten_all_with(mesh: &Mesh, adj: &Adjacency, opts: &FlattenOptions) -> 
     // Group the charts by connected component (through crossable edges), in chart order.
     let comp = components(mesh, adj);
     let mut groups: Vec<(u32, Vec<Vec<crate::mesh::FaceId>>)> = Vec::new();
-    let mut slot: std::collections::HashMap<u32, usize> = std::collections::HashMap::new();
+    let mut slot: FxHashMap<u32, usize> = FxHashMap::default();
     for c in charts {
         let k = comp[c[0].idx()];
         let i = *slot.entry(k).or_insert_with(|| {
@@ -234,7 +235,7 @@ impl Atlas {
             ));
         }
         let texels = TexelMap::new(mesh, size)?;
-        let mut index_of = std::collections::HashMap::new();
+        let mut index_of = FxHashMap::default();
         let mut charts: Vec<ChartRect> = Vec::new();
         let mut face_chart = vec![u32::MAX; mesh.num_faces()];
         for (f, slot) in face_chart.iter_mut().enumerate() {
@@ -533,7 +534,7 @@ fn uv_islands(uv: &crate::mesh::UvMap) -> Vec<u32> {
         sets.union(t[0] as usize, t[1] as usize);
         sets.union(t[0] as usize, t[2] as usize);
     }
-    let mut id: std::collections::HashMap<usize, u32> = std::collections::HashMap::new();
+    let mut id: FxHashMap<usize, u32> = FxHashMap::default();
     uv.faces
         .iter()
         .map(|t| {

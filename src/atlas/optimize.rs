@@ -14,7 +14,7 @@
 use super::param::{height_base_2d, height_base_3d, uv_area, ChartMap};
 use crate::mesh::Mesh;
 use nalgebra::{Point3, Vector2, Vector3};
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 
 /// Options for [`optimize`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -138,7 +138,7 @@ fn terms(f: &Face, q: [Vector2<f64>; 3]) -> Option<(f64, f64)> {
 /// kept up to date as vertices move, so the test for a crossing looks at nearby edges only.
 struct EdgeGrid {
     cell: f64,
-    cells: HashMap<(i64, i64), Vec<u32>>,
+    cells: FxHashMap<(i64, i64), Vec<u32>>,
 }
 
 impl EdgeGrid {
@@ -150,7 +150,7 @@ impl EdgeGrid {
             / edges.len().max(1) as f64;
         let mut g = EdgeGrid {
             cell: (2.0 * mean).max(1e-300),
-            cells: HashMap::new(),
+            cells: FxHashMap::default(),
         };
         for (i, &e) in edges.iter().enumerate() {
             g.insert(i, e, uv);
@@ -427,7 +427,7 @@ pub fn optimize(mesh: &Mesh, map: &mut ChartMap, opts: &StretchOptions) -> f64 {
         }
     }
     // Boundary edges (directed, each once) and, per vertex, the boundary edges it is on.
-    let mut directed: HashMap<(usize, usize), ()> = HashMap::new();
+    let mut directed: FxHashMap<(usize, usize), ()> = FxHashMap::default();
     for f in &faces {
         for k in 0..3 {
             directed.insert((f.v[k], f.v[(k + 1) % 3]), ());

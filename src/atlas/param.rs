@@ -8,7 +8,7 @@
 
 use crate::mesh::{FaceId, Mesh, VertexId};
 use nalgebra::{Point3, Vector2, Vector3};
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 
 /// A flattened chart with its own vertex numbering.
 #[derive(Debug, Clone, PartialEq)]
@@ -28,10 +28,12 @@ pub fn uv_area(q: [Vector2<f64>; 3]) -> f64 {
     0.5 * (q[1] - q[0]).perp(&(q[2] - q[0]))
 }
 
-/// Smallest height/base ratio of a triangle of area `area` and edge lengths `e`:
-/// `2 A / (longest edge)^2`, 0 for a point.
-fn height_base(area: f64, e: [f64; 3]) -> f64 {
-    let m = e.iter().cloned().fold(0.0, f64::max);
+/// Smallest height/base ratio of a triangle of area `area` and squared edge lengths `e2`:
+/// `2 A / (longest edge)^2`, 0 for a point. One square root of the largest instead of three
+/// (the same value: the square root is monotone and correctly rounded); this runs for every
+/// triangle at every step of the stretch minimisation.
+fn height_base(area: f64, e2: [f64; 3]) -> f64 {
+    let m = e2.iter().cloned().fold(0.0, f64::max).sqrt();
     if m > 0.0 {
         2.0 * area / (m * m)
     } else {
@@ -44,9 +46,9 @@ pub fn height_base_2d(q: [Vector2<f64>; 3]) -> f64 {
     height_base(
         uv_area(q),
         [
-            (q[1] - q[0]).norm(),
-            (q[2] - q[1]).norm(),
-            (q[0] - q[2]).norm(),
+            (q[1] - q[0]).norm_squared(),
+            (q[2] - q[1]).norm_squared(),
+            (q[0] - q[2]).norm_squared(),
         ],
     )
 }
@@ -57,9 +59,9 @@ pub fn height_base_3d(p: [Point3<f64>; 3]) -> f64 {
     height_base(
         area,
         [
-            (p[1] - p[0]).norm(),
-            (p[2] - p[1]).norm(),
-            (p[0] - p[2]).norm(),
+            (p[1] - p[0]).norm_squared(),
+            (p[2] - p[1]).norm_squared(),
+            (p[0] - p[2]).norm_squared(),
         ],
     )
 }
@@ -171,7 +173,7 @@ fn stretch_of(faces: impl Iterator<Item = (FaceId, [Vector2<f64>; 3])>, mesh: &M
 /// Flattens one disk-shaped chart (see the module docs). The chart must be a disk
 /// ([`super::segment::is_disk`]).
 pub fn flatten(mesh: &Mesh, faces: &[FaceId]) -> ChartMap {
-    let mut local: HashMap<u32, u32> = HashMap::new();
+    let mut local: FxHashMap<u32, u32> = FxHashMap::default();
     let mut vertices = Vec::new();
     let lf: Vec<[u32; 3]> = faces
         .iter()
@@ -273,7 +275,7 @@ fn lscm(faces: &[[u32; 3]], pos: &[Point3<f64>]) -> Option<Vec<Vector2<f64>>> {
         return None;
     }
     let d = (pos[p1 as usize] - pos[p0 as usize]).norm();
-    let mut pinned: HashMap<u32, Vector2<f64>> = HashMap::new();
+    let mut pinned: FxHashMap<u32, Vector2<f64>> = FxHashMap::default();
     pinned.insert(p0, Vector2::zeros());
     pinned.insert(p1, Vector2::new(d, 0.0));
     // Unknown index of each free vertex (u and v interleaved).
@@ -411,8 +413,8 @@ fn lscm(faces: &[[u32; 3]], pos: &[Point3<f64>]) -> Option<Vec<Vector2<f64>>> {
 }
 
 /// Directed boundary edges of a disk's faces, as a map from start to end vertex.
-fn boundary_next(faces: &[[u32; 3]]) -> HashMap<u32, u32> {
-    let mut directed: HashMap<(u32, u32), u32> = HashMap::new();
+fn boundary_next(faces: &[[u32; 3]]) -> FxHashMap<u32, u32> {
+    let mut directed: FxHashMap<(u32, u32), u32> = FxHashMap::default();
     for t in faces {
         for k in 0..3 {
             *directed.entry((t[k], t[(k + 1) % 3])).or_insert(0) += 1;
@@ -461,24 +463,46 @@ pub(crate) fn edges_cross(edges: &[(u32, u32)], uv: &[Vector2<f64>]) -> bool {
         let c = ((p - lo) / cell).map(|v| (v.max(0.0) as usize).min(dim - 1));
         (c.x, c.y)
     };
-    let mut grid: HashMap<(usize, usize), Vec<usize>> = HashMap::new();
-    for (i, &(a, b)) in edges.iter().enumerate() {
+    // Cells as one flat array (counting sort): this runs at every line-search step of the
+    // stretch minimisation, where a hash map per call cost more than the tests themselves.
+    let cell_range = |&(a, b): &(u32, u32)| {
         let (ka, kb) = (key(uv[a as usize]), key(uv[b as usize]));
-        for x in ka.0.min(kb.0)..=ka.0.max(kb.0) {
-            for y in ka.1.min(kb.1)..=ka.1.max(kb.1) {
-                grid.entry((x, y)).or_default().push(i);
+        (
+            ka.0.min(kb.0)..=ka.0.max(kb.0),
+            ka.1.min(kb.1)..=ka.1.max(kb.1),
+        )
+    };
+    let mut start = vec![0u32; dim * dim + 1];
+    for e in edges {
+        let (xs, ys) = cell_range(e);
+        for x in xs {
+            for y in ys.clone() {
+                start[x * dim + y + 1] += 1;
+            }
+        }
+    }
+    for c in 1..start.len() {
+        start[c] += start[c - 1];
+    }
+    let mut fill = start.clone();
+    let mut slots = vec![0u32; start[dim * dim] as usize];
+    for (i, e) in edges.iter().enumerate() {
+        let (xs, ys) = cell_range(e);
+        for x in xs {
+            for y in ys.clone() {
+                let c = x * dim + y;
+                slots[fill[c] as usize] = i as u32;
+                fill[c] += 1;
             }
         }
     }
     let cross = |a: Vector2<f64>, b: Vector2<f64>, c: Vector2<f64>| (b - a).perp(&(c - a));
-    let mut keys: Vec<&(usize, usize)> = grid.keys().collect();
-    keys.sort();
-    for k in keys {
-        let list = &grid[k];
+    for c in 0..dim * dim {
+        let list = &slots[start[c] as usize..start[c + 1] as usize];
         for (n, &i) in list.iter().enumerate() {
-            let (a, b) = edges[i];
+            let (a, b) = edges[i as usize];
             for &j in &list[n + 1..] {
-                let (c, d) = edges[j];
+                let (c, d) = edges[j as usize];
                 if a == c || a == d || b == c || b == d {
                     continue;
                 }
@@ -528,7 +552,7 @@ fn mean_value_embedding(faces: &[[u32; 3]], pos: &[Point3<f64>]) -> Vec<Vector2<
         acc += len[i];
     }
     // Mean-value weights: w_ij = (tan(a/2) + tan(b/2)) / |p_i - p_j|, angles at i.
-    let mut w: HashMap<(u32, u32), f64> = HashMap::new();
+    let mut w: FxHashMap<(u32, u32), f64> = FxHashMap::default();
     for t in faces {
         for k in 0..3 {
             let (i, j, l) = (t[k], t[(k + 1) % 3], t[(k + 2) % 3]);
@@ -545,7 +569,7 @@ fn mean_value_embedding(faces: &[[u32; 3]], pos: &[Point3<f64>]) -> Vec<Vector2<
     if interior.is_empty() {
         return uv;
     }
-    let index: HashMap<u32, usize> = interior.iter().enumerate().map(|(k, &i)| (i, k)).collect();
+    let index: FxHashMap<u32, usize> = interior.iter().enumerate().map(|(k, &i)| (i, k)).collect();
     // Rows: diag * x_i - sum_j w_ij x_j = sum_{j fixed} w_ij u_j.
     let m = interior.len();
     let mut rows: Vec<Vec<(usize, f64)>> = vec![Vec::new(); m];

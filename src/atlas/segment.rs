@@ -11,8 +11,9 @@
 
 use crate::mesh::{FaceId, Mesh};
 use nalgebra::Vector3;
+use rustc_hash::FxHashMap;
 use std::cmp::Reverse;
-use std::collections::{BinaryHeap, HashMap, VecDeque};
+use std::collections::{BinaryHeap, VecDeque};
 
 /// Options for [`segment`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -231,7 +232,7 @@ fn merge_small(
             if charts[i].is_empty() || charts[i].len() >= min_faces {
                 continue;
             }
-            let mut shared: HashMap<usize, usize> = HashMap::new();
+            let mut shared: FxHashMap<usize, usize> = FxHashMap::default();
             for f in &charts[i] {
                 for g in adj.neighbours[f.idx()].iter().flatten() {
                     let o = owner[*g as usize];
@@ -270,9 +271,10 @@ pub fn is_disk(mesh: &Mesh, adj: &Adjacency, faces: &[FaceId]) -> bool {
     if faces.is_empty() {
         return false;
     }
-    let member: HashMap<u32, ()> = faces.iter().map(|f| (f.0, ())).collect();
+    let member: FxHashMap<u32, ()> = faces.iter().map(|f| (f.0, ())).collect();
     // Connected through crossable edges inside the chart.
-    let mut seen: HashMap<u32, ()> = HashMap::with_capacity(faces.len());
+    let mut seen: FxHashMap<u32, ()> =
+        FxHashMap::with_capacity_and_hasher(faces.len(), Default::default());
     let mut queue = VecDeque::from([faces[0].0]);
     seen.insert(faces[0].0, ());
     while let Some(f) = queue.pop_front() {
@@ -286,7 +288,7 @@ pub fn is_disk(mesh: &Mesh, adj: &Adjacency, faces: &[FaceId]) -> bool {
         return false;
     }
     // Edges: interior if crossable to a member, else boundary.
-    let mut vertices: HashMap<u32, u32> = HashMap::new();
+    let mut vertices: FxHashMap<u32, u32> = FxHashMap::default();
     let (mut interior2, mut boundary) = (0usize, Vec::new());
     for f in faces {
         let face = mesh.faces[f.idx()];
@@ -311,7 +313,7 @@ pub fn is_disk(mesh: &Mesh, adj: &Adjacency, faces: &[FaceId]) -> bool {
         return false;
     }
     // One loop: walk it from the first boundary edge.
-    let next: HashMap<u32, u32> = boundary.iter().copied().collect();
+    let next: FxHashMap<u32, u32> = boundary.iter().copied().collect();
     if next.len() != boundary.len() {
         return false;
     }
@@ -335,9 +337,9 @@ pub fn is_disk(mesh: &Mesh, adj: &Adjacency, faces: &[FaceId]) -> bool {
 /// Splits a chart in two by growing from its two mutually farthest faces (breadth first over
 /// crossable edges, alternating), so both parts are connected and non-empty.
 pub fn split(adj: &Adjacency, faces: &[FaceId]) -> (Vec<FaceId>, Vec<FaceId>) {
-    let member: HashMap<u32, usize> = faces.iter().enumerate().map(|(i, f)| (f.0, i)).collect();
+    let member: FxHashMap<u32, usize> = faces.iter().enumerate().map(|(i, f)| (f.0, i)).collect();
     let farthest = |from: u32| -> u32 {
-        let mut dist: HashMap<u32, u32> = HashMap::from([(from, 0)]);
+        let mut dist: FxHashMap<u32, u32> = FxHashMap::from_iter([(from, 0)]);
         let mut queue = VecDeque::from([from]);
         let mut last = from;
         while let Some(f) = queue.pop_front() {
@@ -361,7 +363,7 @@ pub fn split(adj: &Adjacency, faces: &[FaceId]) -> (Vec<FaceId>, Vec<FaceId>) {
             .find(|&f| f != a)
             .expect("a chart to split has two faces");
     }
-    let mut owner: HashMap<u32, u8> = HashMap::from([(a, 0), (b, 1)]);
+    let mut owner: FxHashMap<u32, u8> = FxHashMap::from_iter([(a, 0), (b, 1)]);
     let mut queues = [VecDeque::from([a]), VecDeque::from([b])];
     while !queues[0].is_empty() || !queues[1].is_empty() {
         for (side, queue) in queues.iter_mut().enumerate() {

@@ -6,7 +6,7 @@ use crate::error::{Error, Result};
 use crate::mesh::{FaceId, Mesh};
 use nalgebra::Vector2;
 use rayon::prelude::*;
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 
 /// Texture coordinate `corner` of `uv` in texel units of an `n`-texel page: x right, y down
 /// from the page's top-left corner (UVs have v up from the lower left).
@@ -182,7 +182,7 @@ pub(crate) fn border_samples(mesh: &Mesh, n: usize) -> Vec<BorderSample> {
         Some(if nrm.dot(&(o - a)) >= 0.0 { nrm } else { -nrm })
     };
     // Each undirected edge: its first face and corner indices.
-    let mut first: HashMap<(u32, u32), (usize, usize)> = HashMap::new();
+    let mut first: FxHashMap<(u32, u32), (usize, usize)> = FxHashMap::default();
     let mut out = Vec::new();
     for (f, fv) in mesh.faces.iter().enumerate() {
         for k in 0..3 {
