@@ -46,7 +46,7 @@ put("ply", "binary.ply", hdr.format("binary_little_endian 1.0").encode()
     + b"".join(struct.pack("<3f", *v) for v in TETRA_V)
     + b"".join(struct.pack("<B3i", 3, *f) for f in TETRA_F))
 
-# One PINHOLE camera, two images observing three points (as tests/bad_input.rs builds).
+# One PINHOLE camera, two images observing three points (as tests/it/bad_input.rs builds).
 cams = "1 PINHOLE 64 48 50 50 32 24\n"
 imgs = ""
 obs = {}

@@ -4,7 +4,7 @@
 
 Writes calib/opencv/inpaint/<mask>.png (the masks, white = fill) and
 calib/opencv/inpaint.json (per texture, variant and mask: PSNR, SSIM, low-frequency PSNR and
-detail ratio inside the mask for TELEA and NS). tests/restore_reference.rs reads both; the
+detail ratio inside the mask for TELEA and NS). tests/it/restore_reference.rs reads both; the
 metrics are defined once, in `metrics()` here and `restore_metrics` in that test.
 
     pip install opencv-python-headless numpy

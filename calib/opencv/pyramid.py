@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Reference pyramids from OpenCV: cv2.pyrDown and cv2.pyrUp (default and odd destination
 sizes) on random float images, and a two-image blend by cv2.detail.MultiBandBlender.
-Writes `pyramid.json`; scantex's tests (src/merge tests and tests/pyramid_reference.rs) read it.
+Writes `pyramid.json`; scantex's tests (src/merge tests and tests/it/pyramid_reference.rs) read it.
 
     pip install opencv-python-headless==5.0.0.93 numpy
     python3 calib/opencv/pyramid.py

@@ -1,7 +1,7 @@
 //! Scene resolution (directory layouts and explicit paths) and photographs: formats, 16-bit
 //! precision, size checks, and lazy decoding.
 
-mod common;
+use crate::common;
 
 use scantex::camera::colmap::{self, Image, Reconstruction};
 use scantex::camera::{Camera, CameraModel, Pose};

@@ -1,7 +1,7 @@
 //! Camera models and COLMAP readers against reference outputs of COLMAP (pycolmap) and OpenCV
 //! committed in `calib/`, and against real COLMAP models in `../shared/data/colmap`.
 
-mod common;
+use crate::common;
 
 use common::{calib_json, f64s, rows, shared_data};
 use nalgebra::{Point2, Point3, Vector3};

@@ -1,7 +1,7 @@
 //! Bad input through the CLI: every case gets a clear error naming the file and the line,
 //! record or element at fault, a non-zero exit, no panic, and no output written.
 
-mod common;
+use crate::common;
 
 use nalgebra::Point3;
 use scantex::camera::colmap::{self, Image, Point2D, Point3D, Reconstruction};

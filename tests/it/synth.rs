@@ -2,7 +2,7 @@
 //! observed texture's statistics instead of a smear, the same bytes on any thread count, and
 //! `scantex synth` on its own.
 
-mod common;
+use crate::common;
 
 use scantex::eval::{evaluate_scene, EvalOptions, UnseenScore};
 use scantex::pipeline::{AtlasSize, TextureOptions};

@@ -3,7 +3,7 @@
 //! The metrics are the script's: inside the mask, PSNR, PSNR of 9x9-Gaussian-blurred images,
 //! and the detail ratio (std of image - 5x5 blur inside the hole / outside it).
 
-mod common;
+use crate::common;
 
 use scantex::restore::{inpaint, Image, RestoreOptions};
 use std::path::Path;

@@ -4,7 +4,7 @@
 //! next run cleans up what a SIGKILL left.
 #![cfg(unix)]
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeMap;
 use std::path::Path;

@@ -1,7 +1,7 @@
 //! Stages 2-3 end to end: binding and resampling on scenes with known truth, the `texture`
 //! command's outputs, and its behaviour on bad input.
 
-mod common;
+use crate::common;
 
 use image::{DynamicImage, Rgb, RgbImage};
 use nalgebra::{Point3, Vector2};

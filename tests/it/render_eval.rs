@@ -2,7 +2,7 @@
 //! reproduces its photographs; eval ranks truth above grey and above a shifted texture;
 //! distortion bends straight lines exactly as the camera model predicts.
 
-mod common;
+use crate::common;
 
 use image::GrayImage;
 use nalgebra::{Point2, Point3, Vector2};

@@ -1,7 +1,7 @@
 //! Mesh readers and writers: round trips, PLY encodings and property types, glTF node
 //! transforms, the real corset scan in both formats, and the Khronos validator on our GLB.
 
-mod common;
+use crate::common;
 
 use nalgebra::{Point3, Vector2};
 use scantex::io::{self, EncodedTexture};
