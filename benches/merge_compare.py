@@ -113,7 +113,7 @@ def measure(scene, extra, tmp):
     with open(os.path.join(out, "report.json")) as f:
         rep = json.load(f)
     secs = next(s["seconds"] for s in rep["stages"] if s["stage"].startswith("resample"))
-    return rep["seams"], mean, secs
+    return rep["pages"][0]["seams"], mean, secs
 
 
 def main():

@@ -119,7 +119,7 @@ def main():
     print(f"| scantex texture, 8192 atlas | {wall:.1f} | {int(peak) / 1024:.0f} |")
     for s in rep["stages"]:
         print(f"| stage {s['stage']} | {s['seconds']:.1f} | {s['peak_mb']:.0f} |")
-    r = rep["resample"]
+    r = rep["pages"][0]["resample"]
     print(f"| resample: depth maps and mip pyramids, all photographs | {r['seconds_photo_setup']:.1f} | |")
     print(f"| resample: sampling texels, all photographs | {r['seconds_texels']:.1f} | |")
     print(f"\nratio texture / decode: {wall / decode:.1f}")

@@ -90,9 +90,20 @@ enum Command {
         /// pixel that sees the surface in its best view, rounded up to a power of two).
         #[arg(long, default_value_t = scantex::pipeline::TextureOptions::default().size, allow_negative_numbers = true)]
         size: scantex::pipeline::AtlasSize,
-        /// The largest side --size auto may choose.
+        /// The largest side --size auto may choose: when the photographs support more
+        /// texels than such a page holds, charts go onto several pages of this side (UDIM
+        /// tiles model.1001.png, model.1002.png, ...).
         #[arg(long, default_value_t = scantex::pipeline::TextureOptions::default().max_size, allow_negative_numbers = true, value_parser = number_in(scantex::atlas::SIZE_RANGE))]
         max_size: u32,
+        /// At most this many atlas pages: the texel density is lowered until the charts fit
+        /// (1: one page, as older versions made). Default: as many as the density needs.
+        #[arg(long, allow_negative_numbers = true, value_parser = number_in(1u32..=u32::MAX))]
+        pages: Option<u32>,
+        /// Texels per unit of scene length instead of a density from the photographs; the
+        /// charts fill as many pages (of --size, or of --max-size with --size auto) as they
+        /// need.
+        #[arg(long, allow_negative_numbers = true, value_parser = number_in(f64::MIN_POSITIVE..=f64::MAX))]
+        texel_density: Option<f64>,
         #[command(flatten)]
         atlas: AtlasArgs,
         /// Keep the UVs the mesh arrived with (unwrapped by another tool: Blender, xatlas,
@@ -637,6 +648,8 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             out,
             size,
             max_size,
+            pages,
+            texel_density,
             atlas,
             keep_uvs,
             method,
@@ -677,6 +690,8 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             atlas.apply(&mut opts.atlas);
             opts.size = size;
             opts.max_size = max_size;
+            opts.max_pages = pages;
+            opts.atlas.pack.texels_per_unit = texel_density;
             opts.keep_uvs = keep_uvs;
             opts.view_weight = match (view_dir, no_view_weight) {
                 (_, true) => ViewWeight::Off,
@@ -748,9 +763,15 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             )?;
             let r = &result.report;
             let total = r.seconds;
+            // Triangle classes are counted over the whole mesh, the same on every page.
+            let c = &r.pages[0].resample;
+            let pages = match r.pages.len() {
+                1 => String::new(),
+                n => format!("{n} pages of "),
+            };
             eprintln!(
-                "textured {} faces from {} photographs into a {}{} atlas in {:.1} s: {} of {} \
-                 vertices bound; triangles {} green, {} blue, {} red; wrote {}",
+                "textured {} faces from {} photographs into {pages}a {}{} atlas in {:.1} s: {} \
+                 of {} vertices bound; triangles {} green, {} blue, {} red; wrote {}",
                 r.faces,
                 r.photos,
                 r.atlas_size,
@@ -758,9 +779,9 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
                 total,
                 r.vertices_bound,
                 r.vertices,
-                r.resample.green,
-                r.resample.blue,
-                r.resample.red,
+                c.green,
+                c.blue,
+                c.red,
                 out.display()
             );
             Ok(ExitCode::SUCCESS)

@@ -178,6 +178,12 @@ pub struct TextureOptions {
     /// Keep the UVs the mesh arrived with (unwrapped by another tool) instead of making an
     /// atlas: the texture is resampled into that layout, page 0 only. Default: false.
     pub keep_uvs: bool,
+    /// At most this many atlas pages. When the photographs support more texels than one page
+    /// of `max_size` holds ([`AtlasSize::Auto`]), or a fixed texel density
+    /// (`atlas.pack.texels_per_unit`) needs more, charts go onto several pages (UDIM tiles
+    /// 1001, 1002, ...); with a limit the density is lowered until they fit (`Some(1)`: one
+    /// page, as with a cap). Default: `None`, as many pages as the density needs.
+    pub max_pages: Option<u32>,
 }
 
 impl Default for TextureOptions {
@@ -195,6 +201,7 @@ impl Default for TextureOptions {
             synth: SynthOptions::default(),
             format: TextureFormat::default(),
             keep_uvs: false,
+            max_pages: None,
         }
     }
 }
@@ -238,10 +245,16 @@ impl TextureOptions {
                 ));
             }
         }
-        if self.atlas.pack.texels_per_unit.is_some() {
+        if self.max_pages == Some(0) {
+            return Err(Error::option(
+                "pages",
+                "at most 0 pages leaves nowhere to put a chart",
+            ));
+        }
+        if self.keep_uvs && self.atlas.pack.texels_per_unit.is_some() {
             return Err(Error::option(
                 "texel_density",
-                "texturing writes one atlas page: a fixed texel density is not supported here",
+                "--keep-uvs keeps the mesh's own layout: a texel density cannot apply",
             ));
         }
         Ok(())
@@ -257,6 +270,30 @@ pub struct StageReport {
     pub seconds: f64,
     /// Peak resident memory of the process at the end of the stage, MB (0 if unknown).
     pub peak_mb: f64,
+    /// The atlas page (UDIM tile) the stage worked on, when there are several.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tile: Option<u32>,
+}
+
+/// What the stages after gains did on one atlas page.
+#[derive(Debug, Clone, Serialize)]
+pub struct PageReport {
+    /// UDIM tile number: 1001 for the first page.
+    pub tile: u32,
+    /// Triangles per class and texels per source.
+    pub resample: ResampleStats,
+    /// What the multiband merge and the chart-border levelling measured.
+    pub merging: merge::MergeStats,
+    /// Seam visibility of the page (1 = invisible): across view boundaries and chart borders.
+    pub seams: SeamReport,
+    /// Restoration of the texels no photograph saw (stage 5), if it ran.
+    pub restore: Option<restore::RestoreReport>,
+    /// Exemplar synthesis of the regions restoration handed over (stage 6), if it ran.
+    pub synth: Option<synth::SynthReport>,
+    /// Of the texels of green triangles (all three vertices seen by one photograph), the
+    /// fraction coloured from photographs; the rest are hidden from every photograph at texel
+    /// precision (robust) and take vertex colours.
+    pub completeness_seen: f64,
 }
 
 /// What `scantex texture` did (written as `report.json`).
@@ -283,7 +320,7 @@ pub struct TextureReport {
     pub warnings: Vec<String>,
     /// The view direction the atlas weighted by, if any.
     pub view_dir: Option<[f64; 3]>,
-    /// The atlas page's side, texels.
+    /// The side of an atlas page, texels.
     pub atlas_size: u32,
     /// How `--size auto` chose it, if it did.
     pub auto_size: Option<atlas::density::AutoSize>,
@@ -299,39 +336,44 @@ pub struct TextureReport {
     pub per_photo: Vec<bind::PhotoBinding>,
     /// Per-photograph gains and how far they brought the photographs together.
     pub gains: Gains,
-    /// Triangles per class and texels per source.
-    pub resample: ResampleStats,
-    /// What the multiband merge and the chart-border levelling measured.
-    pub merging: merge::MergeStats,
-    /// Seam visibility of the atlas (1 = invisible): across view boundaries and chart borders.
-    pub seams: SeamReport,
-    /// Restoration of the texels no photograph saw (stage 5), if it ran.
-    pub restore: Option<restore::RestoreReport>,
-    /// Exemplar synthesis of the regions restoration handed over (stage 6), if it ran.
-    pub synth: Option<synth::SynthReport>,
-    /// Of the texels of green triangles (all three vertices seen by one photograph), the
-    /// fraction coloured from photographs; the rest are hidden from every photograph at texel
-    /// precision (robust) and take vertex colours.
-    pub completeness_seen: f64,
+    /// Per atlas page (one unless the charts needed several): resampling, merging,
+    /// restoration, synthesis and seams.
+    pub pages: Vec<PageReport>,
     /// Per-stage time and peak memory (atlas and bind run concurrently: their times overlap).
     pub stages: Vec<StageReport>,
     /// Wall time of stages 1-3, seconds.
     pub seconds: f64,
 }
 
-/// The product of [`texture`].
+/// One atlas page of [`Textured`].
 #[derive(Debug, Clone)]
-pub struct Textured {
-    /// The mesh with its atlas UVs.
-    pub mesh: Mesh,
-    /// The resampled atlas and its per-texel bookkeeping.
+pub struct TexturedPage {
+    /// UDIM tile number: 1001 for the first page.
+    pub tile: u32,
+    /// The resampled page and its per-texel bookkeeping.
     pub resampled: Resampled,
     /// The unseen texels restoration left (none restored when restoration is off).
     pub unrestored: Option<restore::Unrestored>,
     /// Stage 6's patch map ([`synth::Synthesized::patches`]; empty unless kept), if it ran.
     pub patch_map: Option<Vec<(u32, u32)>>,
+}
+
+/// The product of [`texture`].
+#[derive(Debug, Clone)]
+pub struct Textured {
+    /// The mesh with its atlas UVs (page `p` at u in `[p, p + 1]`).
+    pub mesh: Mesh,
+    /// The atlas pages in tile order; one unless the charts needed several.
+    pub pages: Vec<TexturedPage>,
     /// What happened.
     pub report: TextureReport,
+}
+
+impl Textured {
+    /// The first page (tile 1001), the whole atlas when there is one page.
+    pub fn page(&self) -> &TexturedPage {
+        &self.pages[0]
+    }
 }
 
 /// The report of a stage that began at `t`; restarts `t`.
@@ -340,6 +382,7 @@ fn stage_since(name: &'static str, t: &mut Instant) -> StageReport {
         stage: name,
         seconds: t.elapsed().as_secs_f64(),
         peak_mb: io::peak_memory().unwrap_or(0) as f64 / 1e6,
+        tile: None,
     };
     *t = Instant::now();
     r
@@ -441,16 +484,27 @@ pub fn texture(
             let views: Vec<_> = photos.iter().map(|p| &p.view).collect();
             let a = atlas::density::auto_size(&welded, &views, opts.max_size);
             atlas_opts.pack.size = a.size;
+            // More texels than a capped page holds: pages of the cap, with the texels the
+            // photographs support (the side's rounding to a power of two does not apply).
+            let spread = a.capped && opts.max_pages != Some(1) && !opts.keep_uvs;
+            if spread && atlas_opts.pack.texels_per_unit.is_none() {
+                let k = atlas::density::OVERSAMPLING;
+                atlas_opts.pack.chart_texels = Some(k * k * a.photo_pixels);
+            }
             Some(a)
         }
     };
+    if opts.size == AtlasSize::Auto && atlas_opts.pack.texels_per_unit.is_some() {
+        atlas_opts.pack.size = opts.max_size;
+    }
+    atlas_opts.pack.max_pages = opts.max_pages;
     let (atlas_done, bind_done) = rayon::join(
         || {
             let mut t = Instant::now();
             let built = if opts.keep_uvs {
                 atlas::keep(welded.clone(), atlas_opts.pack.size)
             } else {
-                atlas::build(welded.clone(), &atlas_opts)
+                atlas::build_pages(welded.clone(), &atlas_opts)
             };
             built.map(|r| (r, stage_since("atlas", &mut t)))
         },
@@ -460,7 +514,7 @@ pub fn texture(
                 .map(|b| (b, stage_since("bind", &mut t)))
         },
     );
-    let ((m, atlas, atlas_report), atlas_stage) = atlas_done?;
+    let ((mut m, pages, atlas_report), atlas_stage) = atlas_done?;
     let (binding, bind_stage) = bind_done?;
     drop(welded);
     stages.extend([atlas_stage, bind_stage]);
@@ -497,73 +551,33 @@ pub fn texture(
     let (binding, gains) = photometric::normalise(binding, &m, &normals, &opts.photometric);
     progress.finish();
     stages.push(stage_since("gains", &mut t));
-    let (mut resampled, mut merging) = merge::merge(
-        &m,
-        &normals,
-        &atlas,
-        &binding,
-        &gains,
-        photos,
-        &opts.resample,
-        &opts.merge,
-        progress,
-    )?;
-    stages.push(stage_since("resample+merge", &mut t));
-    let (restore, unrestored) = match opts.restoration {
-        Restoration::Off => (None, None),
-        Restoration::Synthesis { options, handing } => {
-            progress.start("restore", 1);
-            let (r, left) = restore::restore_atlas(
-                &mut resampled,
-                &m,
-                &atlas,
-                &options,
-                &handing,
-                opts.resample.gutter_fill,
-            )?;
-            // Restored texels meet at chart borders without having seen each other.
-            if opts.merge.merge == merge::Merge::Multiband && opts.merge.level_seams {
-                let st = merge::relevel(&m, &atlas, &mut resampled, opts.resample.gutter_fill)?;
-                merging.seam_levelling_after_restore = Some(st);
-            }
-            progress.finish();
-            stages.push(stage_since("restore", &mut t));
-            (Some(r), Some(left))
-        }
-    };
-    let synth = match (&unrestored, &opts.synth.exemplar) {
-        (Some(left), e) if *e != ExemplarSource::Off && !left.regions.is_empty() => {
-            progress.start("synth", 1);
-            let r = synth::synthesize(
-                &m,
-                &normals,
-                &atlas,
-                &mut resampled,
-                left,
-                mean_up(photos),
-                user.as_ref(),
-                &opts.synth,
-                opts.resample.gutter_fill,
-            )?;
-            progress.finish();
-            stages.push(stage_since("synth", &mut t));
-            Some(r)
-        }
-        _ => None,
-    };
-    let (synth, patch_map) = match synth {
-        Some(made) => (Some(made.report), Some(made.patches)),
-        None => (None, None),
-    };
-    let seams = seam_visibility(
-        &m,
-        &resampled.color,
-        &resampled.source,
-        &resampled.best_photo,
-    );
-    stages.push(stage_since("seams", &mut t));
-    let s = &resampled.stats;
-    let seen = s.texels_photos + s.texels_green_fallback;
+    // One page at a time: each page's texel raster, layers and restoration are the size of a
+    // page, and are dropped before the next page begins. Later stages read texel positions
+    // from the mesh's UVs on page 0, so each page in turn is moved there.
+    let count = pages.count();
+    let up = mean_up(photos);
+    let mut done = Vec::with_capacity(count as usize);
+    let mut page_reports = Vec::with_capacity(count as usize);
+    for p in 0..count {
+        atlas::move_page(&mut m, if p == 0 { 0 } else { -1 });
+        let ctx = PageContext {
+            mesh: &m,
+            normals: &normals,
+            binding: &binding,
+            gains: &gains,
+            photos,
+            user: user.as_ref(),
+            up,
+            opts,
+            progress,
+            tile: (count > 1).then_some(1001 + p),
+        };
+        let atlas = pages.atlas(&m, p)?;
+        let (page, report) = texture_page(&ctx, &atlas, 1001 + p, &mut stages, &mut t)?;
+        done.push(page);
+        page_reports.push(report);
+    }
+    atlas::move_page(&mut m, count as i32 - 1);
     let report = TextureReport {
         version: env!("CARGO_PKG_VERSION"),
         method: opts.bind.method,
@@ -583,6 +597,116 @@ pub fn texture(
         rejections: binding.rejections,
         per_photo: binding.per_photo.clone(),
         gains,
+        pages: page_reports,
+        stages,
+        seconds: wall.elapsed().as_secs_f64(),
+    };
+    Ok(Textured {
+        mesh: m,
+        pages: done,
+        report,
+    })
+}
+
+/// What every page's stages read: the whole mesh (its UVs with this page at `[0, 1]`), its
+/// binding and gains, and the options.
+struct PageContext<'a> {
+    mesh: &'a Mesh,
+    normals: &'a [Vector3<f64>],
+    binding: &'a bind::Binding,
+    gains: &'a Gains,
+    photos: &'a [Photo],
+    user: Option<&'a Rgb32FImage>,
+    up: Vector3<f64>,
+    opts: &'a TextureOptions,
+    progress: &'a dyn Progress,
+    /// The tile stage reports name, when there are several pages.
+    tile: Option<u32>,
+}
+
+/// Stages 3-6 and the seam measure on one atlas page.
+fn texture_page(
+    ctx: &PageContext,
+    atlas: &atlas::Atlas,
+    tile: u32,
+    stages: &mut Vec<StageReport>,
+    t: &mut Instant,
+) -> Result<(TexturedPage, PageReport)> {
+    let (m, opts, progress) = (ctx.mesh, ctx.opts, ctx.progress);
+    let mut stage = |name: &'static str, t: &mut Instant| {
+        let mut r = stage_since(name, t);
+        r.tile = ctx.tile;
+        stages.push(r);
+    };
+    let (mut resampled, mut merging) = merge::merge(
+        m,
+        ctx.normals,
+        atlas,
+        ctx.binding,
+        ctx.gains,
+        ctx.photos,
+        &opts.resample,
+        &opts.merge,
+        progress,
+    )?;
+    stage("resample+merge", t);
+    let (restore, unrestored) = match opts.restoration {
+        Restoration::Off => (None, None),
+        Restoration::Synthesis { options, handing } => {
+            progress.start("restore", 1);
+            let (r, left) = restore::restore_atlas(
+                &mut resampled,
+                m,
+                atlas,
+                &options,
+                &handing,
+                opts.resample.gutter_fill,
+            )?;
+            // Restored texels meet at chart borders without having seen each other.
+            if opts.merge.merge == merge::Merge::Multiband && opts.merge.level_seams {
+                let st = merge::relevel(m, atlas, &mut resampled, opts.resample.gutter_fill)?;
+                merging.seam_levelling_after_restore = Some(st);
+            }
+            progress.finish();
+            stage("restore", t);
+            (Some(r), Some(left))
+        }
+    };
+    let synth = match (&unrestored, &opts.synth.exemplar) {
+        (Some(left), e) if *e != ExemplarSource::Off && !left.regions.is_empty() => {
+            progress.start("synth", 1);
+            let r = synth::synthesize(
+                m,
+                ctx.normals,
+                atlas,
+                &mut resampled,
+                left,
+                ctx.up,
+                ctx.user,
+                &opts.synth,
+                opts.resample.gutter_fill,
+            )?;
+            progress.finish();
+            stage("synth", t);
+            Some(r)
+        }
+        _ => None,
+    };
+    let (synth, patch_map) = match synth {
+        Some(made) => (Some(made.report), Some(made.patches)),
+        None => (None, None),
+    };
+    let seams = seam_visibility(
+        m,
+        &resampled.color,
+        &resampled.source,
+        &resampled.best_photo,
+    );
+    stage("seams", t);
+    let s = &resampled.stats;
+    let seen = s.texels_photos + s.texels_green_fallback;
+    let report = PageReport {
+        tile,
         resample: resampled.stats.clone(),
         merging,
         seams,
@@ -593,16 +717,14 @@ pub fn texture(
         } else {
             1.0
         },
-        stages,
-        seconds: wall.elapsed().as_secs_f64(),
     };
-    Ok(Textured {
-        mesh: m,
+    let page = TexturedPage {
+        tile,
         resampled,
         unrestored,
         patch_map,
-        report,
-    })
+    };
+    Ok((page, report))
 }
 
 fn to_png8(img: &Rgb32FImage) -> Result<EncodedTexture> {
@@ -642,52 +764,58 @@ fn write_staged(
     format: TextureFormat,
     debug: Option<&Path>,
 ) -> Result<()> {
-    let img = &result.resampled.color;
-    let png8 = to_png8(img)?;
-    let main = match format {
-        TextureFormat::Png => png8.clone(),
-        TextureFormat::Png16 => {
-            io::image::encode_png(&DynamicImage::ImageRgb32F(img.clone()).into_rgb16().into())?
-        }
-        TextureFormat::Exr => io::image::encode_exr(img)?,
-    };
-    io::obj::write(
-        &mut staged,
-        &dir.join("model.obj"),
-        &result.mesh,
-        Some(&main),
-    )?;
-    io::gltf::write_glb(
-        &mut staged,
-        &dir.join("model.glb"),
-        &result.mesh,
-        Some(&png8),
-    )?;
+    // Page by page, each encoded and its float image left behind before the next.
+    let paged = result.pages.len() > 1;
+    let (mut mains, mut png8s) = (Vec::new(), Vec::new());
+    for page in &result.pages {
+        let img = &page.resampled.color;
+        let png8 = to_png8(img)?;
+        mains.push(match format {
+            TextureFormat::Png => png8.clone(),
+            TextureFormat::Png16 => {
+                io::image::encode_png(&DynamicImage::ImageRgb32F(img.clone()).into_rgb16().into())?
+            }
+            TextureFormat::Exr => io::image::encode_exr(img)?,
+        });
+        png8s.push(png8);
+    }
+    io::obj::write_pages(&mut staged, &dir.join("model.obj"), &result.mesh, &mains)?;
+    drop(mains);
+    io::gltf::write_glb_pages(&mut staged, &dir.join("model.glb"), &result.mesh, &png8s)?;
+    drop(png8s);
     if let Some(d) = debug {
-        let r = &result.resampled;
-        let size = img.width();
-        for (name, pic) in [
-            ("classes.png", r.class_picture()),
-            ("coverage.png", r.coverage_picture()),
-            ("masks.png", r.best_photo_picture()),
-            (
-                "restore.png",
-                restore::picture(r, result.unrestored.as_ref()),
-            ),
-            (
-                "layout.png",
-                atlas::layout_picture(&result.mesh, size.min(4096)),
-            ),
-        ]
-        .into_iter()
-        .chain(
-            result
-                .patch_map
-                .as_ref()
-                .map(|m| ("synth.png", synth::picture(r, m))),
-        ) {
-            let enc = io::image::encode_png(&DynamicImage::ImageRgb8(pic))?;
-            staged.write(&d.join(name), &enc.bytes)?;
+        for page in &result.pages {
+            let r = &page.resampled;
+            let size = r.color.width();
+            // With several pages every picture names its tile: classes.1001.png, ...
+            let name = |base: &str| match paged {
+                true => format!("{base}.{}.png", page.tile),
+                false => format!("{base}.png"),
+            };
+            let layout = paged.then(|| {
+                let mut m = result.mesh.clone();
+                atlas::move_page(&mut m, 1001 - page.tile as i32);
+                m
+            });
+            for (base, pic) in [
+                ("classes", r.class_picture()),
+                ("coverage", r.coverage_picture()),
+                ("masks", r.best_photo_picture()),
+                ("restore", restore::picture(r, page.unrestored.as_ref())),
+                (
+                    "layout",
+                    atlas::layout_picture(layout.as_ref().unwrap_or(&result.mesh), size.min(4096)),
+                ),
+            ]
+            .into_iter()
+            .chain(
+                page.patch_map
+                    .as_ref()
+                    .map(|m| ("synth", synth::picture(r, m))),
+            ) {
+                let enc = io::image::encode_png(&DynamicImage::ImageRgb8(pic))?;
+                staged.write(&d.join(name(base)), &enc.bytes)?;
+            }
         }
     }
     let json = serde_json::to_vec_pretty(&result.report)

@@ -15,15 +15,29 @@ use std::path::Path;
 
 pub use crate::raycast::{Hit, RayMesh};
 
-/// A texture with its mip chain (RGBA, alpha = 1 where the image had no alpha channel).
+/// A texture with its mip chain (RGBA, alpha = 1 where the image had no alpha channel); one
+/// chain per page for UDIM tiles (page `p` at u in `[p, p + 1]`).
 #[derive(Debug, Clone)]
 pub struct Texture {
-    levels: Vec<Rgba32FImage>,
+    pages: Vec<Vec<Rgba32FImage>>,
 }
 
 impl Texture {
     /// Builds the mip chain of `img` by 2x2 box filtering down to 1x1.
     pub fn new(img: &DynamicImage) -> Self {
+        Texture {
+            pages: vec![Self::chain(img)],
+        }
+    }
+
+    /// A texture of UDIM pages, in tile order.
+    pub fn pages(imgs: &[DynamicImage]) -> Self {
+        Texture {
+            pages: imgs.iter().map(Self::chain).collect(),
+        }
+    }
+
+    fn chain(img: &DynamicImage) -> Vec<Rgba32FImage> {
         let mut levels = vec![img.to_rgba32f()];
         while let Some(l) = levels.last() {
             let (w, h) = l.dimensions();
@@ -43,7 +57,7 @@ impl Texture {
             });
             levels.push(next);
         }
-        Texture { levels }
+        levels
     }
 
     /// Loads a mesh's texture from wherever it lives.
@@ -53,13 +67,22 @@ impl Texture {
             TextureSource::Embedded(bytes) => {
                 crate::io::image::decode_bytes(bytes, Path::new("<embedded texture>"))?
             }
+            TextureSource::Tiles(tiles) => {
+                let pages = tiles
+                    .iter()
+                    .map(|t| Texture::load(t).map(|tex| tex.pages.into_iter().next()))
+                    .collect::<Result<Vec<_>>>()?;
+                return Ok(Texture {
+                    pages: pages.into_iter().flatten().collect(),
+                });
+            }
         };
         Ok(Texture::new(&img))
     }
 
-    /// Size of the full-resolution level.
+    /// Size of the full-resolution level (of the first page).
     pub fn dimensions(&self) -> (u32, u32) {
-        self.levels[0].dimensions()
+        self.pages[0][0].dimensions()
     }
 
     fn bilinear(level: &Rgba32FImage, uv: Vector2<f64>) -> [f32; 4] {
@@ -84,17 +107,25 @@ impl Texture {
     }
 
     /// Trilinear lookup at `uv` with a footprint of `texels` full-resolution texels per pixel.
+    /// With several pages, the integer part of u picks the page.
     pub fn sample(&self, uv: Vector2<f64>, texels: f64) -> [f32; 4] {
+        let (levels, uv) = match self.pages.len() {
+            1 => (&self.pages[0], uv),
+            n => {
+                let p = (uv.x.floor().max(0.0) as usize).min(n - 1);
+                (&self.pages[p], Vector2::new(uv.x - p as f64, uv.y))
+            }
+        };
         let lod = texels
             .max(1e-12)
             .log2()
-            .clamp(0.0, (self.levels.len() - 1) as f64);
+            .clamp(0.0, (levels.len() - 1) as f64);
         let l0 = lod.floor() as usize;
-        let a = Self::bilinear(&self.levels[l0], uv);
-        if l0 + 1 >= self.levels.len() || lod == l0 as f64 {
+        let a = Self::bilinear(&levels[l0], uv);
+        if l0 + 1 >= levels.len() || lod == l0 as f64 {
             return a;
         }
-        let b = Self::bilinear(&self.levels[l0 + 1], uv);
+        let b = Self::bilinear(&levels[l0 + 1], uv);
         let f = (lod - l0 as f64) as f32;
         std::array::from_fn(|k| a[k] + (b[k] - a[k]) * f)
     }

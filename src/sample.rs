@@ -735,6 +735,14 @@ pub fn generate_to(
             let img = match &src {
                 crate::mesh::TextureSource::File(f) => io::image::read(f)?,
                 crate::mesh::TextureSource::Embedded(b) => io::image::decode_bytes(b, p)?,
+                crate::mesh::TextureSource::Tiles(_) => {
+                    return Err(Error::at_element(
+                        p,
+                        "texture",
+                        "a texture of several UDIM tiles cannot be photographed yet: give a \
+                         mesh with one texture",
+                    ))
+                }
             };
             mesh.normals = None;
             generate(&mesh, &img, opts, out)

@@ -228,13 +228,23 @@ impl Atlas {
     /// The atlas of `mesh`'s UVs where `chart_of` gives each face's chart under any numbering
     /// (stage 1's, or UV islands).
     fn with_charts(mesh: &Mesh, size: u32, chart_of: &[u32]) -> crate::Result<Atlas> {
+        Atlas::with_charts_where(mesh, size, chart_of, &|_| true)
+    }
+
+    /// [`Atlas::with_charts`] for the faces `on_page` accepts only (the others have no chart).
+    fn with_charts_where(
+        mesh: &Mesh,
+        size: u32,
+        chart_of: &[u32],
+        on_page: &(dyn Fn(usize) -> bool + Sync),
+    ) -> crate::Result<Atlas> {
         if !SIZE_RANGE.contains(&size) {
             return Err(crate::Error::option(
                 "size",
                 format!("atlas size {size} must lie in {SIZE_RANGE:?}"),
             ));
         }
-        let texels = TexelMap::new(mesh, size)?;
+        let texels = TexelMap::new(mesh, size, on_page)?;
         let mut index_of = FxHashMap::default();
         let mut charts: Vec<ChartRect> = Vec::new();
         let mut face_chart = vec![u32::MAX; mesh.num_faces()];
@@ -388,6 +398,20 @@ impl AtlasOptions {
                 );
             }
         }
+        if let Some(t) = self.pack.chart_texels {
+            if !(t.is_finite() && t > 0.0) {
+                return bad(
+                    "chart_texels",
+                    format!("chart texels {t} must be a positive number"),
+                );
+            }
+        }
+        if self.pack.max_pages == Some(0) {
+            return bad(
+                "pages",
+                "at most 0 pages leaves nowhere to put a chart".into(),
+            );
+        }
         Ok(())
     }
 }
@@ -430,20 +454,98 @@ pub fn parameterize(mesh: &Mesh, opts: &AtlasOptions) -> crate::Result<(Mesh, At
     Ok((m, report))
 }
 
-/// Stage 1 as texturing runs it: `mesh` (welded, as [`Mesh::weld`] leaves it) gains its atlas
-/// UVs, and the [`Atlas`] that later stages borrow is built from stage 1's own charts.
-pub fn build(mut mesh: Mesh, opts: &AtlasOptions) -> crate::Result<(Mesh, Atlas, AtlasReport)> {
-    let (uv, face_chart, report) = layout(&mesh, opts)?;
-    mesh.uv = Some(uv);
-    let atlas = Atlas::with_charts(&mesh, opts.pack.size, &face_chart)?;
+/// Stage 1 on one page: `mesh` (welded, as [`Mesh::weld`] leaves it) gains its atlas UVs,
+/// and the [`Atlas`] that later stages borrow is built from stage 1's own charts. Options that
+/// spread charts over several pages are refused; [`build_pages`] takes them.
+pub fn build(mesh: Mesh, opts: &AtlasOptions) -> crate::Result<(Mesh, Atlas, AtlasReport)> {
+    let (mesh, pages, report) = build_pages(mesh, opts)?;
+    if pages.count() > 1 {
+        return Err(crate::Error::option(
+            "texel_density",
+            format!(
+                "the charts need {} pages at this density: build makes one",
+                pages.count()
+            ),
+        ));
+    }
+    let atlas = pages.atlas(&mesh, 0)?;
     Ok((mesh, atlas, report))
 }
 
+/// Stage 1 as texturing runs it: `mesh` (welded, as [`Mesh::weld`] leaves it) gains its atlas
+/// UVs on one or more pages (UDIM tiles: page `p` at u in `[p, p + 1]`), and [`Pages`] builds
+/// each page's [`Atlas`] from stage 1's own charts when its turn comes.
+pub fn build_pages(
+    mut mesh: Mesh,
+    opts: &AtlasOptions,
+) -> crate::Result<(Mesh, Pages, AtlasReport)> {
+    let (uv, face_chart, report) = layout(&mesh, opts)?;
+    let face_page =
+        (report.pages > 1).then(|| (0..uv.faces.len()).map(|f| uv.face_page(f)).collect());
+    mesh.uv = Some(uv);
+    let pages = Pages {
+        size: opts.pack.size,
+        count: report.pages.max(1),
+        face_chart,
+        face_page,
+    };
+    Ok((mesh, pages, report))
+}
+
+/// The pages of an atlas and what builds each page's [`Atlas`]: one page's texel raster is
+/// the size of the page, so texturing builds them one at a time.
+pub struct Pages {
+    size: u32,
+    count: u32,
+    face_chart: Vec<u32>,
+    /// Each face's page; `None` when there is one page.
+    face_page: Option<Vec<u32>>,
+}
+
+impl Pages {
+    /// Number of pages (UDIM tiles 1001, 1002, ...).
+    pub fn count(&self) -> u32 {
+        self.count
+    }
+
+    /// Page side in texels.
+    pub fn size(&self) -> u32 {
+        self.size
+    }
+
+    /// The [`Atlas`] of page `page`. `mesh` is the mesh [`build_pages`] returned with its UVs
+    /// moved so that this page lies at u in `[0, 1]` ([`move_page`]): every later stage reads
+    /// texel positions from the mesh's UVs on page 0.
+    pub fn atlas(&self, mesh: &Mesh, page: u32) -> crate::Result<Atlas> {
+        match &self.face_page {
+            None => Atlas::with_charts(mesh, self.size, &self.face_chart),
+            Some(fp) => {
+                Atlas::with_charts_where(mesh, self.size, &self.face_chart, &|f| fp[f] == page)
+            }
+        }
+    }
+}
+
+/// Moves every texture coordinate of `mesh` by `pages` whole pages in u (negative: towards
+/// page 0). Exact for the UDIM range (whole numbers added to an f32 in `[p, p + 1]`), so moving
+/// a page to `[0, 1]` and back restores the same bits.
+pub fn move_page(mesh: &mut Mesh, pages: i32) {
+    if pages == 0 {
+        return;
+    }
+    if let Some(uv) = &mut mesh.uv {
+        let d = pages as f32;
+        for c in &mut uv.coords {
+            c.x += d;
+        }
+    }
+}
+
 /// Stage 1 for a mesh that keeps the UVs it arrived with (`texture --keep-uvs`): no new
-/// layout, the [`Atlas`] of its UV islands on a `size` page and the report [`measure`] gives.
+/// layout, the [`Pages`] of its UV islands on one `size` page and the report [`measure`] gives.
 /// `mesh` is welded, as [`Mesh::weld`] leaves it (as for [`build`]).
 /// Texturing writes one page: faces whose UVs lie outside [0, 1] are refused.
-pub fn keep(mesh: Mesh, size: u32) -> crate::Result<(Mesh, Atlas, AtlasReport)> {
+pub fn keep(mesh: Mesh, size: u32) -> crate::Result<(Mesh, Pages, AtlasReport)> {
     let Some(uv) = &mesh.uv else {
         return Err(crate::Error::mesh(
             MeshElement::Whole,
@@ -469,11 +571,22 @@ pub fn keep(mesh: Mesh, size: u32) -> crate::Result<(Mesh, Atlas, AtlasReport)> 
             ),
         ));
     }
-    // One island map for the atlas and the report; the atlas checks the size first.
+    if !SIZE_RANGE.contains(&size) {
+        return Err(crate::Error::option(
+            "size",
+            format!("atlas size {size} must lie in {SIZE_RANGE:?}"),
+        ));
+    }
+    // One island map for the atlas and the report.
     let islands = uv_islands(uv);
-    let atlas = Atlas::with_charts(&mesh, size, &islands)?;
     let report = measure_with(&mesh, &Adjacency::new(&mesh), uv, &islands, size);
-    Ok((mesh, atlas, report))
+    let pages = Pages {
+        size,
+        count: 1,
+        face_chart: islands,
+        face_page: None,
+    };
+    Ok((mesh, pages, report))
 }
 
 /// Charts, flattening, stretch budget and packing of a welded mesh: the UVs, each face's chart
@@ -577,7 +690,7 @@ fn measure_with(
         .filter(|(a, &c)| **a != 0.0 && (**a > 0.0) != (island[c as usize] > 0.0))
         .count();
     let pages = (0..uv.faces.len())
-        .map(|f| pack::face_page(uv, f) + 1)
+        .map(|f| uv.face_page(f) + 1)
         .max()
         .unwrap_or(1);
     let cov = pack::coverage(uv, face_chart, size, pages);
@@ -897,7 +1010,7 @@ mod tests {
         assert_eq!((r.stretch.flipped, r.stretch.zero_area), (0, 0));
         let uv = m.uv.as_ref().unwrap();
         for (f, t) in uv.faces.iter().enumerate() {
-            let p = pack::face_page(uv, f) as f32;
+            let p = uv.face_page(f) as f32;
             assert!(t
                 .iter()
                 .all(|&i| (p..=p + 1.0).contains(&uv.coords[i as usize].x)

@@ -23,6 +23,13 @@ pub struct PackOptions {
     /// Fixed texel density (texels per unit of 3D length): charts fill as many pages as they
     /// need. Default: `None`, the largest density that fits one page.
     pub texels_per_unit: Option<f64>,
+    /// Instead of a density, the texels the charts should cover in all (their packed area):
+    /// the density follows, and charts fill as many pages as they need. Ignored when
+    /// `texels_per_unit` is set. Default: `None`.
+    pub chart_texels: Option<f64>,
+    /// With a fixed density (`texels_per_unit` or `chart_texels`), at most this many pages:
+    /// the density is lowered until the charts fit them. Default: `None` (no limit).
+    pub max_pages: Option<u32>,
 }
 
 impl Default for PackOptions {
@@ -31,6 +38,8 @@ impl Default for PackOptions {
             size: 4096,
             gutter: 4,
             texels_per_unit: None,
+            chart_texels: None,
+            max_pages: None,
         }
     }
 }
@@ -687,25 +696,58 @@ pub fn pack(
             .map(|c| (c.uv.iter().map(|p| p * s).collect(), c.faces.as_slice()))
             .collect()
     };
-    let (scale, (placements, pages)) = match opts.texels_per_unit {
-        Some(s) => {
-            if !(s.is_finite() && s > 0.0) {
-                return Err(crate::Error::option(
-                    "texel_density",
-                    format!("texel density {s} must be a positive number"),
-                ));
-            }
-            let r = attempt(&scaled(s), &order, size, gutter, false).ok_or_else(|| {
-                crate::Error::option(
-                    "texel_density",
-                    format!(
-                        "a chart is larger than a {size}-texel page at {s} texels per unit: lower \
-                     the texel density or raise the atlas size"
-                    ),
-                )
-            })?;
-            (s, r)
+    // A fixed density: from the option, or from the texels the charts should cover.
+    let fixed = match (opts.texels_per_unit, opts.chart_texels) {
+        (Some(s), _) => Some(("texel_density", s)),
+        (None, Some(t)) => Some(("chart_texels", (t / area).sqrt())),
+        (None, None) => None,
+    };
+    let mut chosen = None;
+    if let Some((name, s0)) = fixed {
+        if !(s0.is_finite() && s0 > 0.0) {
+            return Err(crate::Error::option(
+                name,
+                format!("texel density {s0} must be a positive number"),
+            ));
         }
+        let too_large = |s: f64| {
+            crate::Error::option(
+                name,
+                format!(
+                    "a chart is larger than a {size}-texel page at {s} texels per unit: lower \
+                 the texel density or raise the atlas size"
+                ),
+            )
+        };
+        let mut s = s0;
+        let mut r = attempt(&scaled(s), &order, size, gutter, false);
+        // A density derived from a texel count is a wish, not an order: when a chart is larger
+        // than a page at it, the density goes down until the largest chart fits.
+        if name == "chart_texels" {
+            for _ in 0..100 {
+                if r.is_some() {
+                    break;
+                }
+                s /= 1.1;
+                r = attempt(&scaled(s), &order, size, gutter, false);
+            }
+        }
+        let mut r = r.ok_or_else(|| too_large(s))?;
+        // Over a page limit above one: scale the density by the square root of the pages'
+        // ratio (the charts' area goes with its square), a little more each time it misses.
+        // A limit of one page is the density search below.
+        let mut shrink = 0.99;
+        while let Some(limit) = opts.max_pages.filter(|&m| r.1 > m && m > 1) {
+            s *= (limit as f64 / r.1 as f64).sqrt().min(0.99) * shrink;
+            shrink *= 0.98;
+            r = attempt(&scaled(s), &order, size, gutter, false).ok_or_else(|| too_large(s))?;
+        }
+        if r.1 <= opts.max_pages.unwrap_or(u32::MAX) {
+            chosen = Some((s, r));
+        }
+    }
+    let (scale, (placements, pages)) = match chosen {
+        Some(c) => c,
         None => {
             // Texels per unit at full utilisation bounds the density from above.
             let upper = size as f64 / area.sqrt();
@@ -867,26 +909,16 @@ pub fn raster_triangle(
     }
 }
 
-/// The UDIM page (0 for tile 1001) of face `f`: the integer part of its centroid's u.
-pub fn face_page(uv: &UvMap, f: usize) -> u32 {
-    let u: f32 = uv.faces[f]
-        .iter()
-        .map(|&i| uv.coords[i as usize].x)
-        .sum::<f32>()
-        / 3.0;
-    u.floor().max(0.0) as u32
-}
-
 /// Rasterises the UV triangles at `size` x `size` texels per page (texel centres) and returns,
 /// per texel of `pages` pages (page after page), how many charts cover it (0, 1, or more if
-/// charts overlap). A face belongs to the page of its centroid's u ([`face_page`]).
+/// charts overlap). A face belongs to the page of its centroid's u ([`UvMap::face_page`]).
 pub fn coverage(uv: &UvMap, face_chart: &[u32], size: u32, pages: u32) -> Vec<u8> {
     let per = (size * size) as usize;
     let mut owner = vec![u32::MAX; per * pages as usize];
     let mut count = vec![0u8; per * pages as usize];
     let n = size as f64;
     for (f, t) in uv.faces.iter().enumerate() {
-        let page = (face_page(uv, f) as usize).min(pages as usize - 1);
+        let page = (uv.face_page(f) as usize).min(pages as usize - 1);
         let q = t.map(|i| {
             let c = uv.coords[i as usize].cast::<f64>();
             Vector2::new(c.x - page as f64, c.y) * n

@@ -68,7 +68,12 @@ pub(crate) struct TexelMap {
 pub(crate) const NO_FACE: u32 = u32::MAX;
 
 impl TexelMap {
-    pub(crate) fn new(mesh: &Mesh, size: u32) -> Result<Self> {
+    /// The raster of the faces `on_page` accepts whose triangles reach the page.
+    pub(crate) fn new(
+        mesh: &Mesh,
+        size: u32,
+        on_page: &(dyn Fn(usize) -> bool + Sync),
+    ) -> Result<Self> {
         let uv = mesh
             .uv
             .as_ref()
@@ -78,6 +83,9 @@ impl TexelMap {
         let faces: Vec<Option<FaceRaster>> = (0..mesh.num_faces())
             .into_par_iter()
             .map(|f| {
+                if !on_page(f) {
+                    return None;
+                }
                 let c = uv.faces[f];
                 let t: [Vector2<f64>; 3] = c.map(|k| texel_point(uv, k, n));
                 let cross = |u: Vector2<f64>, v: Vector2<f64>| u.x * v.y - u.y * v.x;

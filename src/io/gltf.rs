@@ -90,6 +90,30 @@ pub fn parse(path: &Path, bytes: &[u8]) -> Result<(Mesh, LoadReport)> {
         }
     }
     let mut mesh = out.mesh;
+    // Primitives with different base-colour images (one material per page, as scantex
+    // writes several pages): each image becomes a UDIM page and its primitives' UVs move there.
+    let mut images: Vec<usize> = Vec::new();
+    for &(_, _, img) in &out.prim_images {
+        if let Some(i) = img.filter(|i| !images.contains(i)) {
+            images.push(i);
+        }
+    }
+    let tiles = if images.len() > 1 && out.all_uv {
+        for &(first, n, img) in &out.prim_images {
+            let page = img
+                .and_then(|i| images.iter().position(|&j| j == i))
+                .unwrap_or(0);
+            for t in &mut out.uv[first..first + n] {
+                t.x += page as f32;
+            }
+        }
+        images
+            .iter()
+            .map(|&i| texture_source(&g.document, base, i, &buffers))
+            .collect::<Option<Vec<_>>>()
+    } else {
+        None
+    };
     if out.all_uv && !mesh.faces.is_empty() {
         mesh.uv = Some(UvMap {
             coords: out.uv,
@@ -103,14 +127,17 @@ pub fn parse(path: &Path, bytes: &[u8]) -> Result<(Mesh, LoadReport)> {
         mesh.colors = Some(out.colors);
     }
     // The first candidate that exists: some scans name a base-colour file they do not ship.
-    mesh.texture = out
-        .textures
-        .iter()
-        .filter_map(|&i| texture_source(&g.document, base, i, &buffers))
-        .find(|t| match t {
-            TextureSource::File(p) => p.is_file(),
-            TextureSource::Embedded(_) => true,
-        });
+    mesh.texture = match tiles {
+        Some(t) => Some(TextureSource::Tiles(t)),
+        None => out
+            .textures
+            .iter()
+            .filter_map(|&i| texture_source(&g.document, base, i, &buffers))
+            .find(|t| match t {
+                TextureSource::File(p) => p.is_file(),
+                TextureSource::Embedded(_) | TextureSource::Tiles(_) => true,
+            }),
+    };
     Ok((mesh, out.report))
 }
 
@@ -127,6 +154,8 @@ struct Builder {
     started: bool,
     /// Candidate colour images: base colour, then the spec-gloss diffuse (older scans).
     textures: Vec<usize>,
+    /// Per primitive: its first vertex, vertex count and base-colour image, if any.
+    prim_images: Vec<(usize, usize, Option<usize>)>,
 }
 
 impl Builder {
@@ -275,6 +304,12 @@ impl Builder {
                 let t = if flip { [t[0], t[2], t[1]] } else { t };
                 self.mesh.faces.push(t.map(|i| VertexId(base + i)));
             }
+            let image = prim
+                .material()
+                .pbr_metallic_roughness()
+                .base_color_texture()
+                .map(|t| t.texture().source().index());
+            self.prim_images.push((base as usize, n, image));
             if self.textures.is_empty() {
                 let mat = prim.material();
                 let base = mat.pbr_metallic_roughness().base_color_texture();
@@ -321,7 +356,24 @@ pub fn write_glb(
     mesh: &Mesh,
     texture: Option<&EncodedTexture>,
 ) -> Result<()> {
-    if let Some(t) = texture {
+    write_glb_pages(
+        staged,
+        path,
+        mesh,
+        texture.map_or(&[][..], std::slice::from_ref),
+    )
+}
+
+/// [`write_glb`] with one texture per atlas page: with two or more, the faces of page `p`
+/// (u in `[p, p + 1]`) form primitive `p` with its own material and texture, and their UVs
+/// are moved to `[0, 1]` (glTF has no UDIM tiles).
+pub fn write_glb_pages(
+    staged: &mut Staged,
+    path: &Path,
+    mesh: &Mesh,
+    textures: &[EncodedTexture],
+) -> Result<()> {
+    for t in textures {
         if t.mime != "image/png" && t.mime != "image/jpeg" {
             return Err(Error::at_element(
                 path,
@@ -330,19 +382,31 @@ pub fn write_glb(
             ));
         }
     }
-    // One output vertex per distinct (position, uv) pair.
+    let pages = match &mesh.uv {
+        Some(_) => textures.len().max(1),
+        None => 1,
+    };
+    let page_of = |f: usize| match &mesh.uv {
+        Some(uv) if pages > 1 => (uv.face_page(f) as usize).min(pages - 1),
+        _ => 0,
+    };
+    // One output vertex per distinct (position, uv) pair; indices per page. A UV belongs to
+    // one chart, so to one page: the page it is moved from.
     let mut remap: HashMap<(u32, u32), u32> = HashMap::new();
     let mut src: Vec<(u32, u32)> = Vec::new();
-    let mut indices: Vec<u32> = Vec::with_capacity(mesh.faces.len() * 3);
+    let mut src_page: Vec<u32> = Vec::new();
+    let mut indices: Vec<Vec<u32>> = vec![Vec::new(); pages];
     for (f, face) in mesh.faces.iter().enumerate() {
+        let p = page_of(f);
         for (k, vid) in face.iter().enumerate() {
             let key = (vid.0, mesh.uv.as_ref().map_or(0, |uv| uv.faces[f][k]));
             let next = src.len() as u32;
             let id = *remap.entry(key).or_insert_with(|| {
                 src.push(key);
+                src_page.push(p as u32);
                 next
             });
-            indices.push(id);
+            indices[p].push(id);
         }
     }
     let normals: Vec<Vector3<f32>> = match &mesh.normals {
@@ -418,9 +482,10 @@ pub fn write_glb(
         // glTF's texture origin is the top-left corner: flip v.
         let t: Vec<[f32; 2]> = src
             .iter()
-            .map(|&(_, t)| {
+            .zip(&src_page)
+            .map(|(&(_, t), &p)| {
                 let c = uv.coords[t as usize];
-                [c.x, 1.0 - c.y]
+                [c.x - p as f32, 1.0 - c.y]
             })
             .collect();
         let view = push_view(&mut bin, &f32_bytes(t.iter().flatten()), Some(ARRAY_BUFFER));
@@ -429,32 +494,49 @@ pub fn write_glb(
         );
         attributes["TEXCOORD_0"] = json!(accessors.len() - 1);
     }
-    let idx_bytes: Vec<u8> = indices.iter().flat_map(|i| i.to_le_bytes()).collect();
-    let view = push_view(&mut bin, &idx_bytes, Some(ELEMENT_ARRAY_BUFFER));
-    accessors.push(json!({"bufferView": view, "componentType": 5125, "count": indices.len(), "type": "SCALAR"}));
-    let indices_accessor = accessors.len() - 1;
-
-    let mut primitive = json!({"attributes": attributes, "indices": indices_accessor, "mode": 4});
+    let mut primitives = Vec::new();
+    for list in &indices {
+        if list.is_empty() && pages > 1 {
+            continue; // a page with no face (glTF accessors need at least one element)
+        }
+        let idx_bytes: Vec<u8> = list.iter().flat_map(|i| i.to_le_bytes()).collect();
+        let view = push_view(&mut bin, &idx_bytes, Some(ELEMENT_ARRAY_BUFFER));
+        accessors.push(json!({"bufferView": view, "componentType": 5125, "count": list.len(), "type": "SCALAR"}));
+        primitives.push(
+            json!({"attributes": attributes.clone(), "indices": accessors.len() - 1, "mode": 4}),
+        );
+    }
     let mut doc = json!({
         "asset": {"version": "2.0", "generator": concat!("scantex ", env!("CARGO_PKG_VERSION"))},
         "scene": 0,
         "scenes": [{"nodes": [0]}],
         "nodes": [{"mesh": 0}],
     });
-    if let (Some(tex), Some(_)) = (texture, &mesh.uv) {
-        let view = push_view(&mut bin, &tex.bytes, None);
-        doc["images"] = json!([{"bufferView": view, "mimeType": tex.mime}]);
+    if let (false, Some(_)) = (textures.is_empty(), &mesh.uv) {
+        let (mut images, mut texs, mut materials) = (Vec::new(), Vec::new(), Vec::new());
+        let mut k = 0;
+        for (p, tex) in textures.iter().enumerate().take(pages) {
+            if indices[p].is_empty() && pages > 1 {
+                continue;
+            }
+            let view = push_view(&mut bin, &tex.bytes, None);
+            images.push(json!({"bufferView": view, "mimeType": tex.mime}));
+            texs.push(json!({"sampler": 0, "source": k}));
+            materials.push(json!({
+                "pbrMetallicRoughness": {"baseColorTexture": {"index": k}, "metallicFactor": 0.0, "roughnessFactor": 1.0},
+                "doubleSided": false
+            }));
+            primitives[k]["material"] = json!(k);
+            k += 1;
+        }
+        doc["images"] = json!(images);
         // Linear filtering with mipmaps, clamped: charts must not wrap around the atlas.
         doc["samplers"] =
             json!([{"magFilter": 9729, "minFilter": 9987, "wrapS": 33071, "wrapT": 33071}]);
-        doc["textures"] = json!([{"sampler": 0, "source": 0}]);
-        doc["materials"] = json!([{
-            "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}, "metallicFactor": 0.0, "roughnessFactor": 1.0},
-            "doubleSided": false
-        }]);
-        primitive["material"] = json!(0);
+        doc["textures"] = json!(texs);
+        doc["materials"] = json!(materials);
     }
-    doc["meshes"] = json!([{"primitives": [primitive]}]);
+    doc["meshes"] = json!([{"primitives": primitives}]);
     while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }

@@ -184,22 +184,52 @@ pub fn parse(path: &Path, bytes: &[u8]) -> Result<(Mesh, LoadReport)> {
     }
     if let Some(lib) = mtllib {
         let dir = path.parent().unwrap_or(Path::new("."));
-        mesh.texture = diffuse_map(&dir.join(&lib)).map(|t| TextureSource::File(dir.join(t)));
+        let maps = diffuse_maps(&dir.join(&lib));
+        mesh.texture = match udim_tiles(dir, &maps) {
+            Some(tiles) => Some(TextureSource::Tiles(
+                tiles.into_iter().map(TextureSource::File).collect(),
+            )),
+            None => maps.first().map(|t| TextureSource::File(dir.join(t))),
+        };
     }
     Ok((mesh, report))
 }
 
-/// The first `map_Kd` of an MTL file (its options such as `-s 1 1 1` skipped); `None` if the
-/// file is missing or has none: a mesh without its texture is still a mesh.
-fn diffuse_map(mtl: &Path) -> Option<String> {
-    let text = std::fs::read_to_string(mtl).ok()?;
-    text.lines().find_map(|l| {
-        let l = l.trim();
-        let rest = l.strip_prefix("map_Kd")?;
-        let toks: Vec<&str> = rest.split_whitespace().collect();
-        // The file name is what follows the options: take the last token.
-        toks.last().map(|s| s.to_string())
-    })
+/// The `map_Kd` files of an MTL file in order (options such as `-s 1 1 1` skipped); none if
+/// the file is missing or has none: a mesh without its texture is still a mesh.
+fn diffuse_maps(mtl: &Path) -> Vec<String> {
+    let Ok(text) = std::fs::read_to_string(mtl) else {
+        return Vec::new();
+    };
+    text.lines()
+        .filter_map(|l| {
+            let rest = l.trim().strip_prefix("map_Kd")?;
+            // The file name is what follows the options: take the last token.
+            rest.split_whitespace().last().map(|s| s.to_string())
+        })
+        .collect()
+}
+
+/// The pages of a UDIM texture, if the maps name one: either one map with the `<UDIM>` token
+/// (Blender's convention, tiles found on disk from 1001 on) or maps `<stem>.1001.<ext>`,
+/// `<stem>.1002.<ext>`, ... (what scantex writes). A missing tile in the sequence ends it.
+fn udim_tiles(dir: &Path, maps: &[String]) -> Option<Vec<std::path::PathBuf>> {
+    let first = maps.first()?;
+    let pattern = if first.contains("<UDIM>") {
+        first.clone()
+    } else {
+        let (head, ext) = first.rsplit_once('.')?;
+        let stem = head.strip_suffix(".1001")?;
+        format!("{stem}.<UDIM>.{ext}")
+    };
+    let tile = |t: u32| pattern.replace("<UDIM>", &t.to_string());
+    let named: Vec<String> = (1001..1101)
+        .map(tile)
+        .take_while(|n| maps.contains(n) || (maps.len() == 1 && dir.join(n).is_file()))
+        .collect();
+    (named.len() > 1 || first.contains("<UDIM>"))
+        .then(|| named.iter().map(|n| dir.join(n)).collect())
+        .filter(|v: &Vec<_>| !v.is_empty())
 }
 
 /// Writes `mesh` as OBJ; with a texture, also `<stem>.mtl` and `<stem>.<png|jpg>` beside it.
@@ -210,14 +240,36 @@ pub fn write(
     mesh: &Mesh,
     texture: Option<&EncodedTexture>,
 ) -> Result<()> {
+    write_pages(
+        staged,
+        path,
+        mesh,
+        texture.map_or(&[][..], std::slice::from_ref),
+    )
+}
+
+/// [`write`] with one texture per atlas page: with two or more, the faces of page `p` (u in
+/// `[p, p + 1]`) use material `page<1001 + p>`, whose map is `<stem>.<1001 + p>.<ext>` (UDIM
+/// tiles). The UVs keep their UDIM values: a UDIM workflow reads the tiles as one texture, and
+/// a viewer that repeats textures reads each page's material at the same place.
+pub fn write_pages(
+    staged: &mut Staged,
+    path: &Path,
+    mesh: &Mesh,
+    textures: &[EncodedTexture],
+) -> Result<()> {
     let stem = path
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| "model".into());
+    let paged = textures.len() > 1 && mesh.uv.is_some();
     let mut s = String::with_capacity(mesh.positions.len() * 40 + mesh.faces.len() * 30);
     s.push_str("# written by scantex\n");
-    if texture.is_some() {
-        let _ = writeln!(s, "mtllib {stem}.mtl\nusemtl material0");
+    if !textures.is_empty() {
+        let _ = writeln!(s, "mtllib {stem}.mtl");
+        if !paged {
+            s.push_str("usemtl material0\n");
+        }
     }
     for (i, p) in mesh.positions.iter().enumerate() {
         let _ = write!(s, "v {} {} {}", p.x, p.y, p.z);
@@ -237,7 +289,25 @@ pub fn write(
         }
     }
     let has_n = mesh.normals.is_some();
-    for (f, face) in mesh.faces.iter().enumerate() {
+    // Faces in their order, grouped by page when there are several (stable within a page).
+    let order: Vec<usize> = match (&mesh.uv, paged) {
+        (Some(uv), true) => {
+            let mut o: Vec<usize> = (0..mesh.faces.len()).collect();
+            o.sort_by_key(|&f| uv.face_page(f).min(textures.len() as u32 - 1));
+            o
+        }
+        _ => (0..mesh.faces.len()).collect(),
+    };
+    let mut current = None;
+    for f in order {
+        if let (Some(uv), true) = (&mesh.uv, paged) {
+            let p = uv.face_page(f).min(textures.len() as u32 - 1);
+            if current != Some(p) {
+                let _ = writeln!(s, "usemtl page{}", 1001 + p);
+                current = Some(p);
+            }
+        }
+        let face = &mesh.faces[f];
         s.push('f');
         for (k, vid) in face.iter().enumerate() {
             let v = vid.0 + 1;
@@ -251,14 +321,28 @@ pub fn write(
         }
         s.push('\n');
     }
-    // Texture, then material, then the OBJ that names them: the order they are moved into
+    // Textures, then material, then the OBJ that names them: the order they are moved into
     // place, so the file a reader opens first is the last to change.
-    if let Some(tex) = texture {
-        let tex_name = format!("{stem}.{}", tex.extension());
-        let mtl = format!(
-            "# written by scantex\nnewmtl material0\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\nmap_Kd {tex_name}\n"
-        );
-        staged.write(&path.with_file_name(&tex_name), &tex.bytes)?;
+    if !textures.is_empty() {
+        let mut mtl = String::from("# written by scantex\n");
+        for (p, tex) in textures.iter().enumerate() {
+            let (name, tex_name) = if paged {
+                (
+                    format!("page{}", 1001 + p),
+                    format!("{stem}.{}.{}", 1001 + p, tex.extension()),
+                )
+            } else {
+                ("material0".into(), format!("{stem}.{}", tex.extension()))
+            };
+            let _ = write!(
+                mtl,
+                "newmtl {name}\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\nmap_Kd {tex_name}\n"
+            );
+            staged.write(&path.with_file_name(&tex_name), &tex.bytes)?;
+            if !paged {
+                break;
+            }
+        }
         staged.write(&path.with_file_name(format!("{stem}.mtl")), mtl.as_bytes())?;
     }
     staged.write(path, s.as_bytes())

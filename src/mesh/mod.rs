@@ -46,6 +46,18 @@ pub struct UvMap {
     pub faces: Vec<[u32; 3]>,
 }
 
+impl UvMap {
+    /// The UDIM page (0 for tile 1001) of face `f`: the integer part of its corners' mean u.
+    pub fn face_page(&self, f: usize) -> u32 {
+        let u: f32 = self.faces[f]
+            .iter()
+            .map(|&i| self.coords[i as usize].x)
+            .sum::<f32>()
+            / 3.0;
+        u.floor().max(0.0) as u32
+    }
+}
+
 /// Where a mesh's colour texture comes from, kept undecoded until someone needs the pixels.
 #[derive(Debug, Clone, PartialEq)]
 pub enum TextureSource {
@@ -53,6 +65,9 @@ pub enum TextureSource {
     File(PathBuf),
     /// Encoded image bytes embedded in the mesh file (GLB buffer view, data URI).
     Embedded(Vec<u8>),
+    /// UDIM tiles: the images of pages 0, 1, ... (tiles 1001, 1002, ...); page `p` holds
+    /// the faces whose u lies in `[p, p + 1]`.
+    Tiles(Vec<TextureSource>),
 }
 
 /// A triangle mesh with optional per-vertex normals and colours, per-corner UVs and a texture.

@@ -300,7 +300,7 @@ fn corset_gltf_and_obj_describe_the_same_scan() {
 /// `target/npm` on first use, as the README says. npm's registry is reachable on every machine
 /// of this project, so a failed install is a failed test, with npm's own words: the check never
 /// passes by skipping.
-fn khronos_validate(glb: &Path) -> serde_json::Value {
+pub(crate) fn khronos_validate(glb: &Path) -> serde_json::Value {
     let root = common::root();
     let prefix = root.join("target").join("npm");
     if !prefix.join("node_modules/gltf-validator").is_dir() {

@@ -53,20 +53,20 @@ fn an_unseen_side_gets_texture_not_a_smear() {
     };
     opts.synth.keep_patch_map = true;
     let with = common::texture_into(&scene, &opts, &dir.path().join("stage6"));
-    let rep = with.report.synth.as_ref().expect("stage 6 ran");
+    let rep = with.report.pages[0].synth.as_ref().expect("stage 6 ran");
     // The patch map (synth.png) names a patch for every texel written but the bare ones.
-    let patches = with.patch_map.as_ref().unwrap();
+    let patches = with.page().patch_map.as_ref().unwrap();
     assert_eq!(patches.len() as u64, rep.texels);
     let bare = patches.iter().filter(|p| p.1 == u32::MAX).count() as u64;
     assert_eq!(bare, rep.texels_low_only);
-    let pic = scantex::synth::picture(&with.resampled, patches);
+    let pic = scantex::synth::picture(&with.page().resampled, patches);
     let (i, _) = patches[patches.len() / 2];
     let px = pic.get_pixel(i % pic.width(), i / pic.width()).0;
     assert!(px != [110, 110, 110] && px != [50, 50, 50], "{px:?}");
     opts.synth.keep_patch_map = false;
     assert!(!rep.regions.is_empty(), "{rep:?}");
     // Every handed-over texel was written, nearly all with patch detail.
-    let left = with.unrestored.as_ref().unwrap();
+    let left = with.page().unrestored.as_ref().unwrap();
     let handed: u64 = left.regions.iter().map(|r| r.texels).sum();
     assert_eq!(rep.texels, handed);
     assert!(
@@ -77,7 +77,7 @@ fn an_unseen_side_gets_texture_not_a_smear() {
     );
     opts.synth.exemplar = ExemplarSource::Off;
     let without = common::texture_into(&scene, &opts, &dir.path().join("vertex"));
-    assert!(without.report.synth.is_none());
+    assert!(without.report.pages[0].synth.is_none());
     let (a, b) = (
         unseen_scores(&scene, &dir.path().join("stage6")),
         unseen_scores(&scene, &dir.path().join("vertex")),
@@ -106,17 +106,20 @@ fn stage_six_gives_the_same_bytes_on_one_thread() {
         ..Default::default()
     };
     let many = common::texture_into(&scene, &opts, &dir.path().join("a"));
-    assert!(many.report.synth.as_ref().is_some_and(|s| s.texels > 0));
+    assert!(many.report.pages[0]
+        .synth
+        .as_ref()
+        .is_some_and(|s| s.texels > 0));
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()
         .unwrap();
     let one = pool.install(|| common::texture_into(&scene, &opts, &dir.path().join("b")));
-    assert!(one.resampled.color == many.resampled.color);
+    assert!(one.page().resampled.color == many.page().resampled.color);
     let mut other = opts.clone();
     other.synth.seed = 7;
     let reseeded = common::texture_into(&scene, &other, &dir.path().join("c"));
-    assert!(reseeded.resampled.color != many.resampled.color);
+    assert!(reseeded.page().resampled.color != many.page().resampled.color);
 }
 
 fn synth_cli(args: &[&str]) -> (bool, String) {

@@ -223,19 +223,23 @@ fn sample_texture_is_complete_and_accounted_for() {
     let r = texture(mesh, &s.photos, &opts, &Silent).unwrap();
     let rep = &r.report;
     assert_eq!(rep.vertices_bound + rep.vertices_unbound, rep.vertices);
-    let st = &rep.resample;
+    let st = &rep.pages[0].resample;
     assert_eq!(st.green + st.blue + st.red, rep.faces as u64);
     assert!(st.green > st.red, "most of the torus is seen: {st:?}");
     // Texels of green triangles hidden from every photograph at texel precision fall back to
     // vertex colours; on the torus they are a sliver.
-    assert!(rep.completeness_seen > 0.999, "{}", rep.completeness_seen);
-    let src = &r.resampled.source;
+    assert!(
+        rep.pages[0].completeness_seen > 0.999,
+        "{}",
+        rep.pages[0].completeness_seen
+    );
+    let src = &r.page().resampled.source;
     let count = |s: TexelSource| src.iter().filter(|&&v| v == s as u8).count() as u64;
     assert_eq!(count(TexelSource::Photos), st.texels_photos);
     assert_eq!(count(TexelSource::GreenFallback), st.texels_green_fallback);
     assert_eq!(count(TexelSource::Red), st.texels_red);
     // No chart texel left black.
-    let px = r.resampled.color.as_raw();
+    let px = r.page().resampled.color.as_raw();
     for (i, s) in src.iter().enumerate() {
         if *s != TexelSource::Empty as u8 && *s != TexelSource::Gutter as u8 {
             let c = &px[3 * i..3 * i + 3];
@@ -250,7 +254,7 @@ fn sample_texture_is_complete_and_accounted_for() {
     );
     // Same input, same bytes.
     let again = texture(mesh, &s.photos, &opts, &Silent).unwrap();
-    assert!(again.resampled.color == r.resampled.color);
+    assert!(again.page().resampled.color == r.page().resampled.color);
 }
 
 /// The default beats the paper's method on held-out views of the sample (the full
@@ -339,19 +343,25 @@ fn multiband_hides_view_seams_that_winner_take_all_shows() {
         opts.photometric.delight = scantex::photometric::Delight::Off;
         opts.merge.merge = merge;
         let r = texture(mesh, &s.photos, &opts, &Silent).unwrap();
-        let seams = r.report.seams;
+        let seams = r.report.pages[0].seams;
         assert!(seams.view_boundary_pairs > 1000, "{seams:?}");
         ratios.push(seams.view_boundary_ratio);
         // Every chart texel holds a finite, non-black colour.
-        let px = r.resampled.color.as_raw();
-        for (i, src) in r.resampled.source.iter().enumerate() {
+        let px = r.page().resampled.color.as_raw();
+        for (i, src) in r.page().resampled.source.iter().enumerate() {
             if *src != TexelSource::Empty as u8 && *src != TexelSource::Gutter as u8 {
                 let c = &px[3 * i..3 * i + 3];
                 assert!(c.iter().all(|v| v.is_finite()) && c.iter().sum::<f32>() > 0.02);
             }
         }
         // Bookkeeping: the best photograph is recorded wherever photographs coloured a texel.
-        for (src, best) in r.resampled.source.iter().zip(&r.resampled.best_photo) {
+        for (src, best) in r
+            .page()
+            .resampled
+            .source
+            .iter()
+            .zip(&r.page().resampled.best_photo)
+        {
             assert_eq!(
                 *src == TexelSource::Photos as u8,
                 *best != scantex::resample::NO_PHOTO
@@ -376,7 +386,7 @@ fn blending_the_finest_band_closes_the_best_view_steps() {
         let mut opts = sized(2048);
         opts.merge.fine_exponent = exponent;
         let out = dir.path().join(format!("e{exponent}"));
-        let seams = texture_to(&scene, &opts, &out).seams;
+        let seams = texture_to(&scene, &opts, &out).pages[0].seams;
         let rep = held_out(&scene, &out);
         runs.push((seams.view_boundary_ratio, rep.psnr, rep.one_minus_ncc));
     }
@@ -401,7 +411,7 @@ fn coarse_sampling_of_the_lighter_views_keeps_the_texture() {
         opts.merge.full_views = full_views;
         runs.push(texture(mesh, &s.photos, &opts, &Silent).unwrap());
     }
-    let (all, coarse) = (&runs[0].resampled, &runs[1].resampled);
+    let (all, coarse) = (&runs[0].page().resampled, &runs[1].page().resampled);
     let photos = |r: &scantex::resample::Resampled| {
         r.source
             .iter()
@@ -430,7 +440,10 @@ fn coarse_sampling_of_the_lighter_views_keeps_the_texture() {
         "{psnr} dB between all views and coarse lighter views"
     );
     assert!(psnr < 100.0, "the option changed nothing: {psnr} dB");
-    let (sa, sc) = (&runs[0].report.seams, &runs[1].report.seams);
+    let (sa, sc) = (
+        &runs[0].report.pages[0].seams,
+        &runs[1].report.pages[0].seams,
+    );
     assert!(
         sc.view_boundary_ratio < sa.view_boundary_ratio * 1.05,
         "{sa:?} {sc:?}"
@@ -448,10 +461,10 @@ fn seam_levelling_closes_chart_borders_that_deep_pyramids_open() {
         opts.merge.levels = 6;
         opts.merge.level_seams = level;
         let r = texture(mesh, &s.photos, &opts, &Silent).unwrap();
-        let seams = r.report.seams;
+        let seams = r.report.pages[0].seams;
         assert!(seams.chart_border_samples > 1000, "{seams:?}");
         ratios.push(seams.chart_border_ratio);
-        let st = r.report.merging.seam_levelling;
+        let st = r.report.pages[0].merging.seam_levelling;
         assert_eq!(st.is_some(), level);
         if let Some(st) = st {
             assert!(st.border_step_after < 0.5 * st.border_step_before, "{st:?}");
@@ -486,13 +499,16 @@ fn cli_texture_writes_every_output_and_a_texture_that_renders() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out");
     let debug = dir.path().join("debug");
-    // --size auto asks for more than the cap on the sample: the cap holds, and the report says so.
+    // --size auto asks for more than the cap on the sample; with one page allowed the cap
+    // holds on one page, and the report says so.
     let (ok, err) = texture!(
         "samples/torus",
         "--size",
         "auto",
         "--max-size",
         "1024",
+        "--pages",
+        "1",
         "-o",
         out,
         "--debug-dir",
@@ -534,7 +550,7 @@ fn cli_texture_writes_every_output_and_a_texture_that_renders() {
     for key in [
         "vertices_bound",
         "vertices_unbound",
-        "resample",
+        "pages",
         "stages",
         "gains",
     ] {
@@ -544,7 +560,7 @@ fn cli_texture_writes_every_output_and_a_texture_that_renders() {
     // large, orange left unreachable.
     let pic = image::open(debug.join("restore.png")).unwrap().into_rgb8();
     let count = |c: [u8; 3]| pic.pixels().filter(|p| p.0 == c).count() as u64;
-    let r = &report["restore"];
+    let r = &report["pages"][0]["restore"];
     assert_eq!(count([40, 200, 60]), r["texels"].as_u64().unwrap(), "{r}");
     assert_eq!(
         count([220, 40, 200]),
