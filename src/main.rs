@@ -547,7 +547,8 @@ impl SceneArgs {
 struct ViewArgs {
     /// Scene directory holding a mesh file, sparse/ (or sparse/0/), images/ and optionally masks/.
     scene: Option<PathBuf>,
-    /// COLMAP model directory (text or binary); overrides the scene directory's.
+    /// COLMAP model directory (text or binary), or a Meshroom cameras.sfm; overrides the
+    /// scene directory's (sparse/, sparse/0/ or cameras.sfm).
     #[arg(long)]
     colmap: Option<PathBuf>,
     /// Photographs directory; overrides the scene directory's images/.

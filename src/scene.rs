@@ -4,6 +4,7 @@
 //! time, so a scene of 1,000 photos never holds them all in memory.
 
 use crate::camera::colmap::{self, Reconstruction};
+use crate::camera::meshroom;
 use crate::camera::PosedCamera;
 use crate::error::{Error, Result};
 use crate::io::image::PhotoPixels;
@@ -19,7 +20,8 @@ pub struct SceneSpec {
     pub dir: Option<PathBuf>,
     /// Mesh file (.obj, .ply, .gltf, .glb).
     pub mesh: Option<PathBuf>,
-    /// COLMAP model directory (holding `cameras.bin|txt`), or a folder with `sparse/`.
+    /// COLMAP model directory (holding `cameras.bin|txt`), a folder with `sparse/`, or a
+    /// Meshroom camera file (`cameras.sfm`).
     pub colmap: Option<PathBuf>,
     /// Directory of photographs, named as in the COLMAP model.
     pub images: Option<PathBuf>,
@@ -64,6 +66,8 @@ impl SceneSpec {
             (None, None) => None,
         };
         let colmap = match (&self.colmap, &self.dir) {
+            // A Meshroom camera file stands where a COLMAP model would.
+            (Some(c), _) if meshroom::is_sfm_file(c) => Some(c.clone()),
             (Some(c), _) => Some(if colmap::detect_format(c).is_some() {
                 c.clone()
             } else {
@@ -74,7 +78,8 @@ impl SceneSpec {
                         .into(),
                 })?
             }),
-            (None, Some(d)) => colmap::find_model_dir(d),
+            (None, Some(d)) => colmap::find_model_dir(d)
+                .or_else(|| Some(d.join("cameras.sfm")).filter(|p| meshroom::is_sfm_file(p))),
             (None, None) => None,
         };
         let images = self.images.clone().or_else(|| {
@@ -108,6 +113,15 @@ impl SceneSpec {
             images,
             masks,
         })
+    }
+}
+
+/// The camera model at `path`: a COLMAP model directory, or a Meshroom camera file.
+pub fn read_model(path: &Path) -> Result<Reconstruction> {
+    if meshroom::is_sfm_file(path) {
+        meshroom::read(path)
+    } else {
+        colmap::read(path)
     }
 }
 
@@ -329,7 +343,7 @@ impl Scene {
             ));
         }
         let mesh = paths.mesh.as_deref().map(io::read_mesh).transpose()?;
-        let reconstruction = paths.colmap.as_deref().map(colmap::read).transpose()?;
+        let reconstruction = paths.colmap.as_deref().map(read_model).transpose()?;
         let mut photos = match &reconstruction {
             Some(rec) => photos_of(rec, &paths),
             None => Vec::new(),

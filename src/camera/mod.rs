@@ -2,6 +2,7 @@
 //! world-to-camera convention ([`Pose`]), and the COLMAP sparse-model format ([`colmap`]).
 
 pub mod colmap;
+pub mod meshroom;
 mod model;
 pub mod opencv;
 

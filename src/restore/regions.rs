@@ -112,8 +112,15 @@ pub(super) fn face_counts(atlas: &Atlas, source: &[u8], faces: usize) -> (Vec<u3
 
 /// Connected components (through shared edges) of the faces `member` marks, each with its
 /// depth from the rim (faces next to a non-member), in surface units; components with no rim
-/// get infinity. Deterministic: components in order of their first face.
-pub(super) fn components(mesh: &Mesh, adj: &[[u32; 3]], member: &[bool]) -> Vec<(Vec<u32>, f64)> {
+/// get infinity. Faces `elsewhere` marks (on another atlas page: this page knows nothing of
+/// their texels) are neither members nor rim. Deterministic: components in order of their
+/// first face.
+pub(super) fn components(
+    mesh: &Mesh,
+    adj: &[[u32; 3]],
+    member: &[bool],
+    elsewhere: &dyn Fn(u32) -> bool,
+) -> Vec<(Vec<u32>, f64)> {
     let centroid = |f: u32| {
         let t = mesh.triangle(FaceId(f));
         (t[0].coords + t[1].coords + t[2].coords) / 3.0
@@ -145,7 +152,7 @@ pub(super) fn components(mesh: &Mesh, adj: &[[u32; 3]], member: &[bool]) -> Vec<
         for &f in &faces {
             let rim = adj[f as usize]
                 .iter()
-                .any(|&g| g != NO_FACE && !member[g as usize]);
+                .any(|&g| g != NO_FACE && !member[g as usize] && !elsewhere(g));
             if rim {
                 dist[f as usize] = 0.0;
                 heap.push(Reverse((Ordered(0.0), f)));
@@ -201,9 +208,12 @@ pub(super) fn deep_regions(
     scale: f64,
     min_depth: f64,
 ) -> Vec<UnseenRegion> {
-    let member: Vec<bool> = seen.iter().map(|&s| s == 0).collect();
+    let elsewhere = |f: u32| atlas.face_chart[f as usize] == u32::MAX;
+    let member: Vec<bool> = (0..seen.len())
+        .map(|f| seen[f] == 0 && !elsewhere(f as u32))
+        .collect();
     let tpu = atlas.texels_per_unit();
-    components(mesh, adj, &member)
+    components(mesh, adj, &member, &elsewhere)
         .into_iter()
         .filter_map(|(faces, depth)| {
             let depth_texels = depth * tpu;
@@ -251,19 +261,21 @@ pub(super) fn handed_over(
     }
     let member: Vec<bool> = why.iter().map(|w| w.is_some()).collect();
     let tpu = atlas.texels_per_unit();
-    components(mesh, adj, &member)
-        .into_iter()
-        .map(|(faces, depth)| UnseenRegion {
-            texels: faces.iter().map(|&f| u64::from(hidden[f as usize])).sum(),
-            reason: faces
-                .iter()
-                .filter_map(|&f| why[f as usize])
-                .min()
-                .unwrap_or(Handover::Deep),
-            depth_texels: depth * tpu,
-            faces,
-        })
-        .collect()
+    components(mesh, adj, &member, &|f| {
+        atlas.face_chart[f as usize] == u32::MAX
+    })
+    .into_iter()
+    .map(|(faces, depth)| UnseenRegion {
+        texels: faces.iter().map(|&f| u64::from(hidden[f as usize])).sum(),
+        reason: faces
+            .iter()
+            .filter_map(|&f| why[f as usize])
+            .min()
+            .unwrap_or(Handover::Deep),
+        depth_texels: depth * tpu,
+        faces,
+    })
+    .collect()
 }
 
 #[cfg(test)]
@@ -313,7 +325,7 @@ mod tests {
         let adj = face_adjacency(&m);
         // The first two squares are seen; the rest is one region, eight squares deep.
         let member: Vec<bool> = (0..2 * k).map(|f| f >= 4).collect();
-        let c = components(&m, &adj, &member);
+        let c = components(&m, &adj, &member, &|_| false);
         assert_eq!(c.len(), 1);
         assert_eq!(c[0].0, (4..2 * k as u32).collect::<Vec<_>>());
         // From the first region face's centroid to the last one's: 7.3 in a straight line;
@@ -322,6 +334,16 @@ mod tests {
         assert!((7.0..=9.5).contains(&c[0].1), "{}", c[0].1);
         // With nothing seen there is no rim: infinitely deep.
         let all = vec![true; 2 * k];
-        assert!(components(&m, &adj, &all)[0].1.is_infinite());
+        assert!(components(&m, &adj, &all, &|_| false)[0].1.is_infinite());
+        // Faces on another atlas page are no rim: with the first two squares there, the
+        // region has no rim on this page; with the last two there, it is measured from the
+        // first squares alone, as before.
+        let elsewhere_first = |f: u32| f < 4;
+        let c = components(&m, &adj, &member, &elsewhere_first);
+        assert!(c[0].1.is_infinite(), "{}", c[0].1);
+        let member_cut: Vec<bool> = (0..2 * k).map(|f| (4..2 * k - 4).contains(&f)).collect();
+        let elsewhere_last = |f: u32| f >= 2 * k as u32 - 4;
+        let c = components(&m, &adj, &member_cut, &elsewhere_last);
+        assert!((5.0..=7.5).contains(&c[0].1), "{}", c[0].1);
     }
 }

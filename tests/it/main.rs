@@ -9,6 +9,7 @@ mod bad_input;
 mod camera_reference;
 mod kill;
 mod mesh_io;
+mod meshroom;
 mod pages;
 mod pyramid_reference;
 mod render_eval;
