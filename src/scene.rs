@@ -4,8 +4,8 @@
 //! time, so a scene of 1,000 photos never holds them all in memory.
 
 use crate::camera::colmap::{self, Reconstruction};
-use crate::camera::meshroom;
 use crate::camera::PosedCamera;
+use crate::camera::{bundler, meshroom};
 use crate::error::{Error, Result};
 use crate::io::image::PhotoPixels;
 use crate::io::{self, MeshFormat};
@@ -67,7 +67,9 @@ impl SceneSpec {
         };
         let colmap = match (&self.colmap, &self.dir) {
             // A Meshroom camera file stands where a COLMAP model would.
-            (Some(c), _) if meshroom::is_sfm_file(c) => Some(c.clone()),
+            (Some(c), _) if meshroom::is_sfm_file(c) || bundler::is_bundle_file(c) => {
+                Some(c.clone())
+            }
             (Some(c), _) => Some(if colmap::detect_format(c).is_some() {
                 c.clone()
             } else {
@@ -116,10 +118,13 @@ impl SceneSpec {
     }
 }
 
-/// The camera model at `path`: a COLMAP model directory, or a Meshroom camera file.
-pub fn read_model(path: &Path) -> Result<Reconstruction> {
+/// The camera model at `path`: a COLMAP model directory, a Meshroom camera file or a Bundler
+/// file (whose image sizes come from the photographs in `images`).
+pub fn read_model(path: &Path, images: Option<&Path>) -> Result<Reconstruction> {
     if meshroom::is_sfm_file(path) {
         meshroom::read(path)
+    } else if bundler::is_bundle_file(path) {
+        bundler::read(path, images)
     } else {
         colmap::read(path)
     }
@@ -343,7 +348,11 @@ impl Scene {
             ));
         }
         let mesh = paths.mesh.as_deref().map(io::read_mesh).transpose()?;
-        let reconstruction = paths.colmap.as_deref().map(read_model).transpose()?;
+        let reconstruction = paths
+            .colmap
+            .as_deref()
+            .map(|p| read_model(p, paths.images.as_deref()))
+            .transpose()?;
         let mut photos = match &reconstruction {
             Some(rec) => photos_of(rec, &paths),
             None => Vec::new(),

@@ -13,15 +13,11 @@ the layout AliceVision's own writer uses (src/aliceVision/sfmDataIO/jsonIO.cpp):
 Usage: python3 calib/meshroom/colmap_to_sfm.py samples/torus/sparse/0 calib/meshroom/torus_cameras.sfm
 """
 import json
+import os
 import sys
 
-
-def quat_to_matrix(w, x, y, z):
-    return [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ]
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+from colmap_text import quat_to_matrix, read_cameras, read_images  # noqa: E402
 
 
 def s(v):
@@ -29,12 +25,7 @@ def s(v):
 
 
 def main(model, out):
-    cams = {}
-    for line in open(f"{model}/cameras.txt"):
-        if line.startswith("#") or not line.strip():
-            continue
-        t = line.split()
-        cams[t[0]] = (t[1], int(t[2]), int(t[3]), [float(v) for v in t[4:]])
+    cams = read_cameras(model)
     intrinsics = []
     for cid, (model_name, w, h, p) in sorted(cams.items(), key=lambda kv: int(kv[0])):
         if model_name == "SIMPLE_RADIAL":
@@ -58,12 +49,8 @@ def main(model, out):
             "undistortionOffset": ["0", "0"], "undistortionParams": "", "locked": "true",
         })
     views, poses = [], []
-    lines = [l for l in open(f"{model}/images.txt") if not l.startswith("#")]
-    for k in range(0, len(lines) - 1, 2):
-        t = lines[k].split()
-        if not t:
-            continue
-        iid, q, tr, cid, name = t[0], [float(v) for v in t[1:5]], [float(v) for v in t[5:8]], t[8], t[9]
+    for iid, p, cid, name in read_images(model):
+        q, tr = p[:4], p[4:7]
         r = quat_to_matrix(*q)
         centre = [-sum(r[i][j] * tr[i] for i in range(3)) for j in range(3)]
         column_major = [r[i][j] for j in range(3) for i in range(3)]

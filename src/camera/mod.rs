@@ -1,6 +1,7 @@
 //! Cameras: intrinsics with every COLMAP model ([`CameraModel`]), poses in COLMAP's
 //! world-to-camera convention ([`Pose`]), and the COLMAP sparse-model format ([`colmap`]).
 
+pub mod bundler;
 pub mod colmap;
 pub mod meshroom;
 mod model;

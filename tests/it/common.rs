@@ -74,3 +74,33 @@ pub fn texture_into(
     scantex::pipeline::write_outputs(out, &r, scantex::pipeline::TextureFormat::Png, None).unwrap();
     r
 }
+
+/// The largest distance, in pixels, between where two camera models of the same photographs
+/// (paired in image-id order, same names and sizes) put the sample's mesh vertices (every 97th,
+/// where the second model sees them), and how many projections were compared.
+pub fn projection_difference(
+    a: &scantex::camera::colmap::Reconstruction,
+    b: &scantex::camera::colmap::Reconstruction,
+) -> (f64, usize) {
+    let (mesh, _) = scantex::io::read_mesh(&root().join("samples/torus/mesh.ply")).unwrap();
+    assert_eq!(a.images.len(), b.images.len());
+    let (mut worst, mut compared) = (0f64, 0);
+    for (x, y) in a.images.values().zip(b.images.values()) {
+        assert_eq!(x.name, y.name);
+        let (cx, cy) = (&a.cameras[&x.camera_id], &b.cameras[&y.camera_id]);
+        assert_eq!((cx.width, cx.height), (cy.width, cy.height));
+        for p in mesh.positions.iter().step_by(97) {
+            let (pa, pb) = (x.pose.transform(p), y.pose.transform(p));
+            if pb.z <= 0.0 {
+                continue;
+            }
+            if let (Some(u), Some(v)) = (cx.project(&pa), cy.project(&pb)) {
+                if cy.contains(&v) {
+                    worst = worst.max((u - v).norm());
+                    compared += 1;
+                }
+            }
+        }
+    }
+    (worst, compared)
+}

@@ -6,6 +6,7 @@
 mod common;
 
 mod bad_input;
+mod bundler;
 mod camera_reference;
 mod kill;
 mod mesh_io;

@@ -65,28 +65,7 @@ fn the_sample_converted_to_cameras_sfm_projects_as_its_colmap_model() {
     let root = common::root();
     let sfm = meshroom::read(&root.join("calib/meshroom/torus_cameras.sfm")).unwrap();
     let col = colmap::read(&root.join("samples/torus/sparse/0")).unwrap();
-    assert_eq!(sfm.images.len(), col.images.len());
-    let (mesh, _) = scantex::io::read_mesh(&root.join("samples/torus/mesh.ply")).unwrap();
-    let mut worst = 0f64;
-    let mut compared = 0;
-    for (a, b) in sfm.images.values().zip(col.images.values()) {
-        assert_eq!(a.name, b.name);
-        let (ca, cb) = (&sfm.cameras[&a.camera_id], &col.cameras[&b.camera_id]);
-        assert_eq!((ca.width, ca.height), (cb.width, cb.height));
-        for p in mesh.positions.iter().step_by(97) {
-            let (pa, pb) = (a.pose.transform(p), b.pose.transform(p));
-            assert!((pa - pb).norm() < 1e-9 * (1.0 + pb.norm()), "{pa} {pb}");
-            if pb.z <= 0.0 {
-                continue;
-            }
-            if let (Some(x), Some(y)) = (ca.project(&pa), cb.project(&pb)) {
-                if cb.contains(&y) {
-                    worst = worst.max((x - y).norm());
-                    compared += 1;
-                }
-            }
-        }
-    }
+    let (worst, compared) = common::projection_difference(&sfm, &col);
     assert!(compared > 1000, "{compared} projections compared");
     assert!(worst < 1e-6, "largest difference {worst} px");
 }
