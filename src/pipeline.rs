@@ -363,7 +363,8 @@ pub struct TexturedPage {
 pub struct Textured {
     /// The mesh with its atlas UVs (page `p` at u in `[p, p + 1]`).
     pub mesh: Mesh,
-    /// The atlas pages in tile order; one unless the charts needed several.
+    /// The atlas pages in tile order; one unless the charts needed several. Only the pages
+    /// the sink kept ([`texture_with`]; [`texture`] keeps all).
     pub pages: Vec<TexturedPage>,
     /// What happened.
     pub report: TextureReport,
@@ -371,6 +372,9 @@ pub struct Textured {
 
 impl Textured {
     /// The first page (tile 1001), the whole atlas when there is one page.
+    ///
+    /// # Panics
+    /// If the pages were handed to a sink that kept none ([`texture_with`]).
     pub fn page(&self) -> &TexturedPage {
         &self.pages[0]
     }
@@ -424,12 +428,31 @@ pub fn mean_view_dir(photos: &[Photo]) -> Option<Vector3<f64>> {
     (mean.norm() >= 0.3).then(|| mean.normalize())
 }
 
-/// Runs stages 1-3 on `mesh` and `photos`.
+/// Runs every stage on `mesh` and `photos`; the product keeps every page.
 pub fn texture(
     mesh: &Mesh,
     photos: &[Photo],
     opts: &TextureOptions,
     progress: &dyn Progress,
+) -> Result<Textured> {
+    texture_with(mesh, photos, opts, progress, &mut |_, _, page| {
+        Ok(Some(page))
+    })
+}
+
+/// What [`texture_with`] does with each page as it is finished: it gets the mesh with that
+/// page's UVs at `[0, 1]`, the number of pages and the page, and returns the page to keep it
+/// in [`Textured::pages`] or `None` once it has written it (so the next page does not hold
+/// this one's images).
+pub type PageSink<'a> = dyn FnMut(&Mesh, u32, TexturedPage) -> Result<Option<TexturedPage>> + 'a;
+
+/// [`texture`], handing each finished page to `on_page`.
+pub fn texture_with(
+    mesh: &Mesh,
+    photos: &[Photo],
+    opts: &TextureOptions,
+    progress: &dyn Progress,
+    on_page: &mut PageSink,
 ) -> Result<Textured> {
     opts.validate()?;
     if photos.is_empty() {
@@ -558,8 +581,13 @@ pub fn texture(
     let up = mean_up(photos);
     let mut done = Vec::with_capacity(count as usize);
     let mut page_reports = Vec::with_capacity(count as usize);
+    let original = (count > 1)
+        .then(|| m.uv.as_ref().map(|uv| uv.coords.clone()))
+        .flatten();
     for p in 0..count {
-        atlas::move_page(&mut m, if p == 0 { 0 } else { -1 });
+        if let Some(o) = &original {
+            atlas::place_page(&mut m, o, p);
+        }
         let ctx = PageContext {
             mesh: &m,
             normals: &normals,
@@ -574,10 +602,13 @@ pub fn texture(
         };
         let atlas = pages.atlas(&m, p)?;
         let (page, report) = texture_page(&ctx, &atlas, 1001 + p, &mut stages, &mut t)?;
-        done.push(page);
+        drop(atlas);
+        done.extend(on_page(&m, count, page)?);
         page_reports.push(report);
     }
-    atlas::move_page(&mut m, count as i32 - 1);
+    if let (Some(o), Some(uv)) = (original, &mut m.uv) {
+        uv.coords = o;
+    }
     let report = TextureReport {
         version: env!("CARGO_PKG_VERSION"),
         method: opts.bind.method,
@@ -755,8 +786,94 @@ pub fn begin_outputs(dir: &Path, debug: Option<&Path>) -> Result<Staged> {
     Staged::begin("texture", &dirs)
 }
 
-/// [`write_outputs`] into staging prepared by [`begin_outputs`]. `report.json` is moved into
-/// place last: once it is new, so is everything else.
+/// Writes a textured result's files page by page: each page's textures are encoded (and its
+/// debug pictures written) as it comes, so only encoded bytes outlive a page; the meshes and
+/// `report.json` follow at the end.
+struct PageWriter<'a> {
+    format: TextureFormat,
+    debug: Option<&'a Path>,
+    mains: Vec<EncodedTexture>,
+    png8s: Vec<EncodedTexture>,
+}
+
+impl<'a> PageWriter<'a> {
+    fn new(format: TextureFormat, debug: Option<&'a Path>) -> Self {
+        PageWriter {
+            format,
+            debug,
+            mains: Vec::new(),
+            png8s: Vec::new(),
+        }
+    }
+
+    /// One page of `count`; `at_page` is the mesh with this page's UVs at `[0, 1]`.
+    fn page(
+        &mut self,
+        staged: &mut Staged,
+        at_page: &Mesh,
+        count: u32,
+        page: &TexturedPage,
+    ) -> Result<()> {
+        let r = &page.resampled;
+        let img = &r.color;
+        let png8 = to_png8(img)?;
+        self.mains.push(match self.format {
+            TextureFormat::Png => png8.clone(),
+            TextureFormat::Png16 => {
+                io::image::encode_png(&DynamicImage::ImageRgb32F(img.clone()).into_rgb16().into())?
+            }
+            TextureFormat::Exr => io::image::encode_exr(img)?,
+        });
+        self.png8s.push(png8);
+        let Some(d) = self.debug else {
+            return Ok(());
+        };
+        // With several pages every picture names its tile: classes.1001.png, ...
+        let name = |base: &str| match count > 1 {
+            true => format!("{base}.{}.png", page.tile),
+            false => format!("{base}.png"),
+        };
+        for (base, pic) in [
+            ("classes", r.class_picture()),
+            ("coverage", r.coverage_picture()),
+            ("masks", r.best_photo_picture()),
+            ("restore", restore::picture(r, page.unrestored.as_ref())),
+            (
+                "layout",
+                atlas::layout_picture(at_page, img.width().min(4096)),
+            ),
+        ]
+        .into_iter()
+        .chain(
+            page.patch_map
+                .as_ref()
+                .map(|m| ("synth", synth::picture(r, m))),
+        ) {
+            let enc = io::image::encode_png(&DynamicImage::ImageRgb8(pic))?;
+            staged.write(&d.join(name(base)), &enc.bytes)?;
+        }
+        Ok(())
+    }
+
+    /// The meshes (naming every page's texture) and `report.json`, moved into place last: once
+    /// it is new, so is everything else.
+    fn finish(
+        self,
+        mut staged: Staged,
+        dir: &Path,
+        mesh: &Mesh,
+        report: &TextureReport,
+    ) -> Result<()> {
+        io::obj::write_pages(&mut staged, &dir.join("model.obj"), mesh, &self.mains)?;
+        io::gltf::write_glb_pages(&mut staged, &dir.join("model.glb"), mesh, &self.png8s)?;
+        let json = serde_json::to_vec_pretty(report)
+            .map_err(|e| Error::Internal(format!("cannot serialise the report: {e}")))?;
+        staged.write(&dir.join("report.json"), &json)?;
+        staged.commit()
+    }
+}
+
+/// [`write_outputs`] into staging prepared by [`begin_outputs`].
 fn write_staged(
     mut staged: Staged,
     dir: &Path,
@@ -764,64 +881,17 @@ fn write_staged(
     format: TextureFormat,
     debug: Option<&Path>,
 ) -> Result<()> {
-    // Page by page, each encoded and its float image left behind before the next.
-    let paged = result.pages.len() > 1;
-    let (mut mains, mut png8s) = (Vec::new(), Vec::new());
+    let mut w = PageWriter::new(format, debug);
+    let count = result.pages.len() as u32;
+    let mut at_page = result.mesh.clone();
+    let original = result.mesh.uv.as_ref().map(|uv| uv.coords.clone());
     for page in &result.pages {
-        let img = &page.resampled.color;
-        let png8 = to_png8(img)?;
-        mains.push(match format {
-            TextureFormat::Png => png8.clone(),
-            TextureFormat::Png16 => {
-                io::image::encode_png(&DynamicImage::ImageRgb32F(img.clone()).into_rgb16().into())?
-            }
-            TextureFormat::Exr => io::image::encode_exr(img)?,
-        });
-        png8s.push(png8);
-    }
-    io::obj::write_pages(&mut staged, &dir.join("model.obj"), &result.mesh, &mains)?;
-    drop(mains);
-    io::gltf::write_glb_pages(&mut staged, &dir.join("model.glb"), &result.mesh, &png8s)?;
-    drop(png8s);
-    if let Some(d) = debug {
-        for page in &result.pages {
-            let r = &page.resampled;
-            let size = r.color.width();
-            // With several pages every picture names its tile: classes.1001.png, ...
-            let name = |base: &str| match paged {
-                true => format!("{base}.{}.png", page.tile),
-                false => format!("{base}.png"),
-            };
-            let layout = paged.then(|| {
-                let mut m = result.mesh.clone();
-                atlas::move_page(&mut m, 1001 - page.tile as i32);
-                m
-            });
-            for (base, pic) in [
-                ("classes", r.class_picture()),
-                ("coverage", r.coverage_picture()),
-                ("masks", r.best_photo_picture()),
-                ("restore", restore::picture(r, page.unrestored.as_ref())),
-                (
-                    "layout",
-                    atlas::layout_picture(layout.as_ref().unwrap_or(&result.mesh), size.min(4096)),
-                ),
-            ]
-            .into_iter()
-            .chain(
-                page.patch_map
-                    .as_ref()
-                    .map(|m| ("synth", synth::picture(r, m))),
-            ) {
-                let enc = io::image::encode_png(&DynamicImage::ImageRgb8(pic))?;
-                staged.write(&d.join(name(base)), &enc.bytes)?;
-            }
+        if let Some(o) = &original {
+            atlas::place_page(&mut at_page, o, page.tile - 1001);
         }
+        w.page(&mut staged, &at_page, count, page)?;
     }
-    let json = serde_json::to_vec_pretty(&result.report)
-        .map_err(|e| Error::Internal(format!("cannot serialise the report: {e}")))?;
-    staged.write(&dir.join("report.json"), &json)?;
-    staged.commit()
+    w.finish(staged, dir, &result.mesh, &result.report)
 }
 
 /// The whole `scantex texture` job: loads the scene (mesh and COLMAP model required; every
@@ -857,12 +927,25 @@ pub fn texture_scene(
     scene.check_photos()?;
     let mut opts = opts.clone();
     opts.synth.keep_patch_map = debug.is_some();
-    let mut result = texture(mesh, &scene.photos, &opts, progress)?;
+    // Each page is encoded into staging as it is finished and its images dropped: the run
+    // holds one page's images at a time.
+    let mut staged = staged;
+    let mut writer = PageWriter::new(opts.format, debug);
+    let mut result = texture_with(
+        mesh,
+        &scene.photos,
+        &opts,
+        progress,
+        &mut |at_page, count, page| {
+            writer.page(&mut staged, at_page, count, &page)?;
+            Ok(None)
+        },
+    )?;
     result.report.photos_skipped = scene.skipped.clone();
     result.report.photos_bad = scene.bad.clone();
     warnings.append(&mut result.report.warnings);
     result.report.warnings = warnings;
-    write_staged(staged, out, &result, opts.format, debug)?;
+    writer.finish(staged, out, &result.mesh, &result.report)?;
     Ok(result)
 }
 

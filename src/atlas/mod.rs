@@ -514,7 +514,7 @@ impl Pages {
     }
 
     /// The [`Atlas`] of page `page`. `mesh` is the mesh [`build_pages`] returned with its UVs
-    /// moved so that this page lies at u in `[0, 1]` ([`move_page`]): every later stage reads
+    /// moved so that this page lies at u in `[0, 1]` ([`place_page`]): every later stage reads
     /// texel positions from the mesh's UVs on page 0.
     pub fn atlas(&self, mesh: &Mesh, page: u32) -> crate::Result<Atlas> {
         match &self.face_page {
@@ -526,17 +526,15 @@ impl Pages {
     }
 }
 
-/// Moves every texture coordinate of `mesh` by `pages` whole pages in u (negative: towards
-/// page 0). Exact for the UDIM range (whole numbers added to an f32 in `[p, p + 1]`), so moving
-/// a page to `[0, 1]` and back restores the same bits.
-pub fn move_page(mesh: &mut Mesh, pages: i32) {
-    if pages == 0 {
-        return;
-    }
+/// Sets `mesh`'s texture coordinates to `original` (the coordinates [`build_pages`] gave it)
+/// moved by `page` whole pages towards page 0, so that page `page` lies at u in `[0, 1]`.
+/// Always from `original`: moving a coordinate below zero rounds it in f32, so moves made one
+/// after another would not come back to the same bits.
+pub fn place_page(mesh: &mut Mesh, original: &[nalgebra::Vector2<f32>], page: u32) {
     if let Some(uv) = &mut mesh.uv {
-        let d = pages as f32;
-        for c in &mut uv.coords {
-            c.x += d;
+        let d = page as f32;
+        for (c, o) in uv.coords.iter_mut().zip(original) {
+            *c = nalgebra::Vector2::new(o.x - d, o.y);
         }
     }
 }
