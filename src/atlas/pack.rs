@@ -546,6 +546,22 @@ fn attempt(
     one_page: bool,
 ) -> Option<Packing> {
     use rayon::prelude::*;
+    // A chart wider or taller than the page fits in none of its four turns: fail before its
+    // footprint is rasterised (at a huge density, that raster alone would not fit in memory).
+    let too_large = charts.iter().any(|(uv, _)| {
+        let (lo, hi) = uv.iter().fold(
+            (
+                Vector2::repeat(f64::INFINITY),
+                Vector2::repeat(f64::NEG_INFINITY),
+            ),
+            |(lo, hi), p| (lo.inf(p), hi.sup(p)),
+        );
+        let d = hi - lo;
+        !(d.x.is_finite() && d.y.is_finite()) || d.x.max(d.y) > size as f64
+    });
+    if too_large {
+        return None;
+    }
     // Masks are made in batches in packing order: an attempt that fails (most of a density
     // search) stops early and does not rasterise the charts it never reached.
     let mut masks: Vec<Vec<Mask>> = vec![Vec::new(); charts.len()];

@@ -415,6 +415,12 @@ fn atlas_options_out_of_range_and_meshes_without_uvs() {
             vec!["mesh.obj", "-o", "p.obj", "--texel-density", "0"],
             "texel density",
         ),
+        // A density no page can hold fails before any chart is rasterised at it (it aborted
+        // on a failed allocation of 1.8e18 bytes).
+        (
+            vec!["mesh.obj", "-o", "p.obj", "--texel-density", "1e12"],
+            "a chart is larger than a 4096-texel page",
+        ),
     ] {
         let err = fails_cmd(d.path(), "param", &args);
         assert!(err.contains(what), "{args:?}: {err}");
@@ -1212,6 +1218,19 @@ fn option_values_the_library_refuses_name_the_option() {
     names(
         &texture_fails(d.path(), &["--background", "2,0,0"]),
         &["background colour", "[0, 1]"],
+    );
+    names(
+        &texture_fails(d.path(), &["--texel-density", "1e12"]),
+        &["--texel-density", "a chart is larger than"],
+    );
+    names(
+        &texture_fails(d.path(), &["--keep-uvs", "--texel-density", "3"]),
+        &["--texel-density", "--keep-uvs"],
+    );
+    usage_fails(
+        "texture",
+        &[".", "-o", "out", "--pages", "0"],
+        &["--pages", "from 1 to"],
     );
     usage_fails(
         "texture",
