@@ -508,11 +508,6 @@ impl Pages {
         self.count
     }
 
-    /// Page side in texels.
-    pub fn size(&self) -> u32 {
-        self.size
-    }
-
     /// The [`Atlas`] of page `page`. `mesh` is the mesh [`build_pages`] returned with its UVs
     /// moved so that this page lies at u in `[0, 1]` ([`place_page`]): every later stage reads
     /// texel positions from the mesh's UVs on page 0.

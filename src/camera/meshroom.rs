@@ -73,12 +73,12 @@ pub fn parse(path: &Path, bytes: &[u8]) -> Result<Reconstruction> {
         // No version: AliceVision reads it as the oldest layout.
         _ => (1, 0, 0),
     };
-    let list = |key: &str| -> Result<&Vec<Value>> {
+    let list = |key: &str| -> Result<&[Value]> {
         match doc.get(key) {
             Some(Value::Array(a)) => Ok(a),
             // AliceVision writes an empty list as "".
-            Some(Value::String(s)) if s.is_empty() => Ok(EMPTY.as_ref()),
-            None => Ok(EMPTY.as_ref()),
+            Some(Value::String(s)) if s.is_empty() => Ok(&[]),
+            None => Ok(&[]),
             Some(_) => Err(bad(key.into(), "expected a list".into())),
         }
     };
@@ -156,8 +156,6 @@ pub fn parse(path: &Path, bytes: &[u8]) -> Result<Reconstruction> {
     })
 }
 
-static EMPTY: std::sync::LazyLock<Vec<Value>> = std::sync::LazyLock::new(Vec::new);
-
 /// A number written as a JSON number or a string.
 fn num(v: &Value) -> Option<f64> {
     match v {
@@ -218,10 +216,16 @@ fn intrinsic(v: &Value, id: u32, version: (u32, u32, u32)) -> std::result::Resul
         let f = field(v, "pxFocalLength")?;
         (f, f)
     } else if version < (1, 2, 2) {
-        match numbers(v, "pxFocalLength")?.as_slice() {
-            [fx, fy] => (*fx, *fy),
-            [f] => (*f, *f),
-            _ => (field(v, "pxFocalLength")?, field(v, "pxFocalLength")?),
+        // Two values (fx, fy) in these versions; one number is read as both.
+        match v.get("pxFocalLength") {
+            Some(Value::Array(_)) => match numbers(v, "pxFocalLength")?.as_slice() {
+                [fx, fy] => (*fx, *fy),
+                _ => return Err("pxFocalLength needs two numbers".into()),
+            },
+            _ => {
+                let f = field(v, "pxFocalLength")?;
+                (f, f)
+            }
         }
     } else {
         let sensor = v.get("sensorWidth").and_then(num).unwrap_or(36.0);
