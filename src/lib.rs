@@ -34,6 +34,7 @@ pub mod eval;
 pub mod info;
 pub mod io;
 pub mod level;
+pub mod memory;
 pub mod merge;
 pub mod mesh;
 pub mod photometric;

@@ -99,6 +99,11 @@ enum Command {
         /// (1: one page, as older versions made). Default: as many as the density needs.
         #[arg(long, allow_negative_numbers = true, value_parser = number_in(1u32..=u32::MAX))]
         pages: Option<u32>,
+        /// How much memory the run may use: a share of the machine (75%), a size (12G,
+        /// 512M) or off. --size auto makes pages smaller when a page of --max-size would not
+        /// fit; a run that cannot fit fails at once, saying what it would need.
+        #[arg(long, default_value_t = scantex::pipeline::TextureOptions::default().memory_limit)]
+        memory_limit: scantex::memory::MemoryLimit,
         /// Texels per unit of scene length instead of a density from the photographs; the
         /// charts fill as many pages (of --size, or of --max-size with --size auto) as they
         /// need.
@@ -651,6 +656,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             size,
             max_size,
             pages,
+            memory_limit,
             texel_density,
             atlas,
             keep_uvs,
@@ -693,6 +699,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             opts.size = size;
             opts.max_size = max_size;
             opts.max_pages = pages;
+            opts.memory_limit = memory_limit;
             opts.atlas.pack.texels_per_unit = texel_density;
             opts.keep_uvs = keep_uvs;
             opts.view_weight = match (view_dir, no_view_weight) {

@@ -9,6 +9,7 @@ use crate::atlas::{self, AtlasOptions, AtlasReport};
 use crate::bind::{self, BindOptions, Rejections};
 use crate::error::{Error, Result};
 use crate::io::{self, EncodedTexture, Staged};
+use crate::memory::{self, Estimate, MemoryLimit};
 use crate::merge::{self, Masks, MergeOptions};
 use crate::mesh::Mesh;
 use crate::photometric::{self, GainModel, Gains, PhotometricOptions};
@@ -184,6 +185,11 @@ pub struct TextureOptions {
     /// 1001, 1002, ...); with a limit the density is lowered until they fit (`Some(1)`: one
     /// page, as with a cap). Default: `None`, as many pages as the density needs.
     pub max_pages: Option<u32>,
+    /// How much memory the run may use. With [`AtlasSize::Auto`] pages get a smaller side
+    /// (and there are more of them) when a page of `max_size` would not fit; a fixed size
+    /// that cannot fit, or a mesh and binding that alone exceed the limit, fail before any
+    /// work with the estimate. Default: [`MemoryLimit::default`] (75% of the machine).
+    pub memory_limit: MemoryLimit,
 }
 
 impl Default for TextureOptions {
@@ -202,6 +208,7 @@ impl Default for TextureOptions {
             format: TextureFormat::default(),
             keep_uvs: false,
             max_pages: None,
+            memory_limit: MemoryLimit::default(),
         }
     }
 }
@@ -233,6 +240,7 @@ impl TextureOptions {
         self.photometric.validate()?;
         self.merge.validate()?;
         self.synth.validate()?;
+        self.memory_limit.validate()?;
         let fixed = match self.size {
             AtlasSize::Fixed(n) => Some(("size", n)),
             AtlasSize::Auto => None,
@@ -268,7 +276,8 @@ pub struct StageReport {
     pub stage: &'static str,
     /// Wall time, seconds.
     pub seconds: f64,
-    /// Peak resident memory of the process at the end of the stage, MB (0 if unknown).
+    /// Peak resident memory of the process during the stage, MB (0 if unknown). Atlas and
+    /// binding run side by side: both report the peak of the two together.
     pub peak_mb: f64,
     /// The atlas page (UDIM tile) the stage worked on, when there are several.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -294,6 +303,20 @@ pub struct PageReport {
     /// fraction coloured from photographs; the rest are hidden from every photograph at texel
     /// precision (robust) and take vertex colours.
     pub completeness_seen: f64,
+}
+
+/// The memory limit a run was held to and what it was estimated to need.
+#[derive(Debug, Clone, Serialize)]
+pub struct MemoryReport {
+    /// The limit, bytes (`None`: no limit, or the machine's memory unknown).
+    pub limit_bytes: Option<u64>,
+    /// The estimate by part, bytes, with the binding's views counted.
+    pub estimate: Estimate,
+    /// Its total, bytes.
+    pub estimate_bytes: u64,
+    /// The largest page side `--size auto` could choose under the limit (`max_size`, or less
+    /// when the limit lowered it).
+    pub max_side: u32,
 }
 
 /// What `scantex texture` did (written as `report.json`).
@@ -341,8 +364,13 @@ pub struct TextureReport {
     pub pages: Vec<PageReport>,
     /// Per-stage time and peak memory (atlas and bind run concurrently: their times overlap).
     pub stages: Vec<StageReport>,
-    /// Wall time of stages 1-3, seconds.
+    /// Wall time of the whole run (reading the inputs aside), seconds.
     pub seconds: f64,
+    /// The memory limit and the estimate the run was checked against.
+    pub memory: MemoryReport,
+    /// Peak resident memory of the process so far (reading the inputs included), MB (0 if
+    /// unknown).
+    pub peak_mb: f64,
 }
 
 /// One atlas page of [`Textured`].
@@ -380,16 +408,56 @@ impl Textured {
     }
 }
 
-/// The report of a stage that began at `t`; restarts `t`.
-fn stage_since(name: &'static str, t: &mut Instant) -> StageReport {
-    let r = StageReport {
-        stage: name,
-        seconds: t.elapsed().as_secs_f64(),
-        peak_mb: io::peak_memory().unwrap_or(0) as f64 / 1e6,
-        tile: None,
-    };
-    *t = Instant::now();
-    r
+/// The stages' reports as they end, each with its wall time and the peak resident memory
+/// while it ran.
+struct StageLog {
+    reports: Vec<StageReport>,
+    watch: io::MemoryWatch,
+    t: Instant,
+}
+
+impl StageLog {
+    fn new() -> StageLog {
+        StageLog {
+            reports: Vec::new(),
+            watch: io::MemoryWatch::start(),
+            t: Instant::now(),
+        }
+    }
+
+    /// Ends stage `name`, begun when the previous one ended, on page `tile`.
+    fn end(&mut self, name: &'static str, tile: Option<u32>) {
+        self.reports.push(StageReport {
+            stage: name,
+            seconds: self.t.elapsed().as_secs_f64(),
+            peak_mb: self.watch.take() as f64 / 1e6,
+            tile,
+        });
+        self.t = Instant::now();
+    }
+
+    /// Ends stages that ran side by side, each timed by itself, with their common peak.
+    fn end_together(&mut self, timed: &[(&'static str, f64)]) {
+        let peak_mb = self.watch.take() as f64 / 1e6;
+        for &(stage, seconds) in timed {
+            self.reports.push(StageReport {
+                stage,
+                seconds,
+                peak_mb,
+                tile: None,
+            });
+        }
+        self.t = Instant::now();
+    }
+}
+
+/// The smallest page side the memory limit may lower `--size auto`'s pages to: smaller pages
+/// would each re-read every photograph for little atlas.
+pub const MIN_PAGE_UNDER_LIMIT: u32 = 1024;
+
+/// The UDIM tile of page `p` of `count`, when there are several.
+fn ctx_tile(count: u32, p: u32) -> Option<u32> {
+    (count > 1).then_some(1001 + p)
 }
 
 /// The scene's "up" as the photographs suggest it: photographers hold cameras level, so up
@@ -480,7 +548,7 @@ pub fn texture_with(
         }
         _ => None,
     };
-    let mut stages = Vec::new();
+    let mut log = StageLog::new();
     let wall = Instant::now();
     let mut atlas_opts = opts.atlas;
     let view_dir = match opts.view_weight {
@@ -498,6 +566,42 @@ pub fn texture_with(
     }
     welded.weld();
     let normals = welded.vertex_normals();
+    // The memory limit first: it may lower the page side that `--size auto` can choose.
+    let limit = opts.memory_limit.bytes();
+    let photo_pixels = photos
+        .iter()
+        .map(|p| u64::from(p.view.camera.width) * u64::from(p.view.camera.height))
+        .max()
+        .unwrap_or(0);
+    let assumed_views =
+        welded.num_vertices() as u64 * memory::ASSUMED_VIEWS.min(photos.len() as u64);
+    let mut estimate = Estimate::new(welded.num_faces() as u64, assumed_views, photo_pixels, 0);
+    let mut max_size = opts.max_size;
+    let mut warnings = Vec::new();
+    if let (Some(limit), AtlasSize::Auto, false) = (limit, opts.size, opts.keep_uvs) {
+        let floor = MIN_PAGE_UNDER_LIMIT.min(max_size);
+        let Some(side) = memory::fitting_side(&estimate, max_size, floor, limit) else {
+            return Err(memory::over_limit(
+                &estimate,
+                floor,
+                &opts.memory_limit,
+                &format!(
+                    "not even pages of {floor} texels fit beside the mesh and the \
+                     photographs; raise --memory-limit, or texture a decimated mesh"
+                ),
+            ));
+        };
+        if side < max_size {
+            let w = format!(
+                "pages of at most {side} texels instead of {max_size}, to stay within the \
+                 memory limit of {}",
+                memory::human(limit)
+            );
+            progress.warn(&w);
+            warnings.push(w);
+            max_size = side;
+        }
+    }
     let auto_size = match opts.size {
         AtlasSize::Fixed(n) => {
             atlas_opts.pack.size = n;
@@ -505,7 +609,7 @@ pub fn texture_with(
         }
         AtlasSize::Auto => {
             let views: Vec<_> = photos.iter().map(|p| &p.view).collect();
-            let a = atlas::density::auto_size(&welded, &views, opts.max_size);
+            let a = atlas::density::auto_size(&welded, &views, max_size);
             atlas_opts.pack.size = a.size;
             // More texels than a capped page holds: pages of the cap, with the texels the
             // photographs support (the side's rounding to a power of two does not apply).
@@ -518,30 +622,63 @@ pub fn texture_with(
         }
     };
     if opts.size == AtlasSize::Auto && atlas_opts.pack.texels_per_unit.is_some() {
-        atlas_opts.pack.size = opts.max_size;
+        atlas_opts.pack.size = max_size;
+    }
+    let side = atlas_opts.pack.size;
+    if let Some(l) = limit {
+        if estimate.with_side(side).total() > l {
+            return Err(memory::over_limit(
+                &estimate,
+                side,
+                &opts.memory_limit,
+                "use --size auto (pages of a side that fits), a smaller --size, or raise \
+                 --memory-limit",
+            ));
+        }
     }
     atlas_opts.pack.max_pages = opts.max_pages;
     let (atlas_done, bind_done) = rayon::join(
         || {
-            let mut t = Instant::now();
+            let t = Instant::now();
             let built = if opts.keep_uvs {
                 atlas::keep(welded.clone(), atlas_opts.pack.size)
             } else {
                 atlas::build_pages(welded.clone(), &atlas_opts)
             };
-            built.map(|r| (r, stage_since("atlas", &mut t)))
+            built.map(|r| (r, t.elapsed().as_secs_f64()))
         },
         || {
-            let mut t = Instant::now();
+            let t = Instant::now();
             bind::bind(&welded, &normals, photos, &opts.bind, progress)
-                .map(|b| (b, stage_since("bind", &mut t)))
+                .map(|b| (b, t.elapsed().as_secs_f64()))
         },
     );
     let ((mut m, pages, atlas_report), atlas_stage) = atlas_done?;
     let (binding, bind_stage) = bind_done?;
     drop(welded);
-    stages.extend([atlas_stage, bind_stage]);
-    let mut t = Instant::now();
+    log.end_together(&[("atlas", atlas_stage), ("bind", bind_stage)]);
+    // Binding has counted its views: the estimate with them, before the pages' work.
+    estimate = Estimate::new(
+        m.num_faces() as u64,
+        binding.samples.len() as u64,
+        photo_pixels,
+        side,
+    );
+    if let Some(l) = limit {
+        if estimate.total() > l {
+            return Err(memory::over_limit(
+                &estimate,
+                side,
+                &opts.memory_limit,
+                &format!(
+                    "binding keeps {} views of {} vertices; raise --memory-limit, or use \
+                     fewer photographs or a smaller --max-size",
+                    binding.samples.len(),
+                    binding.offsets.len().saturating_sub(1)
+                ),
+            ));
+        }
+    }
     if binding.bound_vertices() == 0 {
         let r = &binding.rejections;
         return Err(Error::Invalid(format!(
@@ -551,7 +688,6 @@ pub fn texture_with(
             r.outside, r.facing, r.silhouette, r.occluded, r.mask, r.background
         )));
     }
-    let mut warnings = Vec::new();
     if opts.keep_uvs && atlas_report.overlapping_texels > 0 {
         let w = format!(
             "the mesh's own UVs overlap ({} texels covered by more than one chart): the \
@@ -573,7 +709,7 @@ pub fn texture_with(
     progress.start("gains", 1);
     let (binding, gains) = photometric::normalise(binding, &m, &normals, &opts.photometric);
     progress.finish();
-    stages.push(stage_since("gains", &mut t));
+    log.end("gains", None);
     // One page at a time: each page's texel raster, layers and restoration are the size of a
     // page, and are dropped before the next page begins. Later stages read texel positions
     // from the mesh's UVs on page 0, so each page in turn is moved there.
@@ -598,17 +734,25 @@ pub fn texture_with(
             up,
             opts,
             progress,
-            tile: (count > 1).then_some(1001 + p),
+            tile: ctx_tile(count, p),
         };
         let atlas = pages.atlas(&m, p)?;
-        let (page, report) = texture_page(&ctx, &atlas, 1001 + p, &mut stages, &mut t)?;
+        let (page, report) = texture_page(&ctx, &atlas, 1001 + p, &mut log)?;
         drop(atlas);
         done.extend(on_page(&m, count, page)?);
+        log.end("output", ctx_tile(count, p));
         page_reports.push(report);
     }
     if let (Some(o), Some(uv)) = (original, &mut m.uv) {
         uv.coords = o;
     }
+    let stages = log.reports;
+    // The kernel's high-water mark covers the reading before the stages; the watch's samples
+    // can be ahead of it (its counters are synchronised lazily).
+    let peak_mb = stages
+        .iter()
+        .map(|s| s.peak_mb)
+        .fold(io::peak_memory().unwrap_or(0) as f64 / 1e6, f64::max);
     let report = TextureReport {
         version: env!("CARGO_PKG_VERSION"),
         method: opts.bind.method,
@@ -631,6 +775,13 @@ pub fn texture_with(
         pages: page_reports,
         stages,
         seconds: wall.elapsed().as_secs_f64(),
+        memory: MemoryReport {
+            limit_bytes: limit,
+            estimate,
+            estimate_bytes: estimate.total(),
+            max_side: max_size,
+        },
+        peak_mb,
     };
     Ok(Textured {
         mesh: m,
@@ -660,15 +811,10 @@ fn texture_page(
     ctx: &PageContext,
     atlas: &atlas::Atlas,
     tile: u32,
-    stages: &mut Vec<StageReport>,
-    t: &mut Instant,
+    log: &mut StageLog,
 ) -> Result<(TexturedPage, PageReport)> {
     let (m, opts, progress) = (ctx.mesh, ctx.opts, ctx.progress);
-    let mut stage = |name: &'static str, t: &mut Instant| {
-        let mut r = stage_since(name, t);
-        r.tile = ctx.tile;
-        stages.push(r);
-    };
+    let mut stage = |name: &'static str| log.end(name, ctx.tile);
     let (mut resampled, mut merging) = merge::merge(
         m,
         ctx.normals,
@@ -680,7 +826,7 @@ fn texture_page(
         &opts.merge,
         progress,
     )?;
-    stage("resample+merge", t);
+    stage("resample+merge");
     let (restore, unrestored) = match opts.restoration {
         Restoration::Off => (None, None),
         Restoration::Synthesis { options, handing } => {
@@ -699,7 +845,7 @@ fn texture_page(
                 merging.seam_levelling_after_restore = Some(st);
             }
             progress.finish();
-            stage("restore", t);
+            stage("restore");
             (Some(r), Some(left))
         }
     };
@@ -718,7 +864,7 @@ fn texture_page(
                 opts.resample.gutter_fill,
             )?;
             progress.finish();
-            stage("synth", t);
+            stage("synth");
             Some(r)
         }
         _ => None,
@@ -733,7 +879,7 @@ fn texture_page(
         &resampled.source,
         &resampled.best_photo,
     );
-    stage("seams", t);
+    stage("seams");
     let s = &resampled.stats;
     let seen = s.texels_photos + s.texels_green_fallback;
     let report = PageReport {

@@ -75,6 +75,74 @@ pub fn peak_memory() -> Option<u64> {
     Some(kb * 1024)
 }
 
+/// Resident memory of this process now, bytes (Linux `statm`; `None` elsewhere).
+pub fn resident_memory() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/statm").ok()?;
+    let pages: u64 = s.split_whitespace().nth(1)?.parse().ok()?;
+    Some(pages * page_size())
+}
+
+fn page_size() -> u64 {
+    #[cfg(unix)]
+    // SAFETY: sysconf reads a constant of the system.
+    let n = unsafe { libc::sysconf(libc::_SC_PAGESIZE) };
+    #[cfg(not(unix))]
+    let n = 4096;
+    u64::try_from(n).unwrap_or(4096)
+}
+
+/// How often [`MemoryWatch`] looks.
+const WATCH_PERIOD: std::time::Duration = std::time::Duration::from_millis(5);
+
+/// The peak resident memory of each part of a run: a thread reads the resident size every 5
+/// ms. The kernel's high-water mark ([`peak_memory`]) only rises, and resetting it would
+/// also reset what `time` and a calling process see as the run's peak.
+pub struct MemoryWatch {
+    peak: std::sync::Arc<std::sync::atomic::AtomicU64>,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl MemoryWatch {
+    /// Starts watching (where the resident size cannot be read, [`MemoryWatch::take`] gives 0).
+    pub fn start() -> MemoryWatch {
+        use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+        use std::sync::Arc;
+        let peak = Arc::new(AtomicU64::new(resident_memory().unwrap_or(0)));
+        let stop = Arc::new(AtomicBool::new(false));
+        let thread = resident_memory().is_some().then(|| {
+            let (peak, stop) = (peak.clone(), stop.clone());
+            std::thread::spawn(move || {
+                while !stop.load(Ordering::Relaxed) {
+                    if let Some(r) = resident_memory() {
+                        peak.fetch_max(r, Ordering::Relaxed);
+                    }
+                    std::thread::sleep(WATCH_PERIOD);
+                }
+            })
+        });
+        MemoryWatch { peak, stop, thread }
+    }
+
+    /// The peak resident bytes since the last call (or the start); the next call's peak
+    /// starts from the size now.
+    pub fn take(&self) -> u64 {
+        let now = resident_memory().unwrap_or(0);
+        self.peak
+            .swap(now, std::sync::atomic::Ordering::Relaxed)
+            .max(now)
+    }
+}
+
+impl Drop for MemoryWatch {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
 /// Returns memory the allocator holds but no longer uses to the system (glibc's
 /// `malloc_trim`; a no-op elsewhere). glibc keeps freed small and mid-sized blocks in its
 /// heaps, so memory freed by one stage (the merge's thousand chart accumulators) would

@@ -1227,6 +1227,26 @@ fn option_values_the_library_refuses_name_the_option() {
         &texture_fails(d.path(), &["--keep-uvs", "--texel-density", "3"]),
         &["--texel-density", "--keep-uvs"],
     );
+    // A fixed page the limit cannot hold fails before any work, with the estimate.
+    names(
+        &texture_fails(d.path(), &["--size", "8192", "--memory-limit", "1G"]),
+        &["--memory-limit", "would need about", "a 8192 page", "limit of 1.0 GiB"],
+    );
+    names(
+        &texture_fails(d.path(), &["--memory-limit", "20M"]),
+        &["--memory-limit", "not even pages of 1024 texels fit"],
+    );
+    for (bad, says) in [
+        ("0", "a positive size"),
+        ("150%", "(0%, 100%]"),
+        ("lots", "'lots' is not a memory limit"),
+    ] {
+        usage_fails(
+            "texture",
+            &[".", "-o", "out", "--memory-limit", bad],
+            &["--memory-limit", says],
+        );
+    }
     usage_fails(
         "texture",
         &[".", "-o", "out", "--pages", "0"],

@@ -142,3 +142,51 @@ fn blender_imports(out: &Path, pages: usize) {
         }
     }
 }
+
+/// `--memory-limit` on the command line (a process of its own, so that its peak is the
+/// run's): a limit under what one 2048 page needs turns the sample's page into pages of
+/// 1024, the same files as `--max-size 1024` gives, and the measured peak stays under it.
+#[test]
+fn a_memory_limit_makes_smaller_pages_and_the_run_stays_within_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = common::root().join("samples/torus");
+    let run = |out: &str, extra: &[&str]| {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_scantex"))
+            .arg("texture")
+            .arg(&scene)
+            .arg("-o")
+            .arg(dir.path().join(out))
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let report = std::fs::read(dir.path().join(out).join("report.json")).unwrap();
+        let report: serde_json::Value = serde_json::from_slice(&report).unwrap();
+        (report, String::from_utf8_lossy(&o.stderr).into_owned())
+    };
+    let limit = 256u64 << 20;
+    let (limited, stderr) = run("limited", &["--memory-limit", "256M"]);
+    assert!(stderr.contains("pages of at most 1024 texels instead of 8192"), "{stderr}");
+    assert_eq!(limited["memory"]["limit_bytes"], limit);
+    assert_eq!(limited["memory"]["max_side"], 1024);
+    let pages = limited["pages"].as_array().unwrap().len();
+    assert!(pages >= 2, "{pages} pages");
+    let estimate = limited["memory"]["estimate_bytes"].as_u64().unwrap();
+    assert!(estimate <= limit, "estimate {estimate}");
+    let peak = limited["peak_mb"].as_f64().unwrap() * 1e6;
+    assert!(peak > 0.0 && peak <= limit as f64, "peak {peak} bytes");
+    // Each stage's own peak is measured and none exceeds the run's.
+    for s in limited["stages"].as_array().unwrap() {
+        let p = s["peak_mb"].as_f64().unwrap() * 1e6;
+        assert!(p > 0.0 && p <= peak * 1.001, "{s}");
+    }
+    // The limit only chose the page side: the same pages as asking for that side.
+    let (capped, _) = run("capped", &["--max-size", "1024", "--memory-limit", "off"]);
+    assert_eq!(capped["memory"]["limit_bytes"], serde_json::Value::Null);
+    assert_eq!(capped["pages"].as_array().unwrap().len(), pages);
+    for f in ["model.obj", "model.1001.png", "model.1002.png"] {
+        let a = std::fs::read(dir.path().join("limited").join(f)).unwrap();
+        let b = std::fs::read(dir.path().join("capped").join(f)).unwrap();
+        assert!(a == b, "{f} differs");
+    }
+}
