@@ -187,6 +187,10 @@ pub struct BindOptions {
     pub weight_power: f64,
     /// Longest side of the per-photograph depth map, pixels. Default: 2048.
     pub depth_resolution: u32,
+    /// The most views a vertex keeps, the heaviest (ties: the earlier photograph); 0 keeps
+    /// every view. The binding then holds at most this many 20-byte views per vertex however
+    /// many photographs there are (resampling uses at most 12 per face). Default: 32.
+    pub max_views: usize,
 }
 
 impl Default for BindOptions {
@@ -202,6 +206,7 @@ impl Default for BindOptions {
             consistency_threshold: 0.12,
             weight_power: 1.0,
             depth_resolution: 2048,
+            max_views: 32,
         }
     }
 }
@@ -264,7 +269,7 @@ impl BindOptions {
 }
 
 /// One valid photograph of one vertex.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct ViewSample {
     /// Index into the photograph list given to [`bind`].
     pub photo: u32,
@@ -291,12 +296,15 @@ pub struct Rejections {
     pub background: u64,
     /// Disagrees with the vertex's other views (robust only).
     pub inconsistent: u64,
+    /// Valid, but lighter than the vertex's [`BindOptions::max_views`] heaviest views.
+    pub lighter: u64,
     /// Valid pairs kept.
     pub kept: u64,
 }
 
 impl Rejections {
     fn add(&mut self, o: &Rejections) {
+        self.lighter += o.lighter;
         self.outside += o.outside;
         self.facing += o.facing;
         self.silhouette += o.silhouette;
@@ -630,9 +638,18 @@ pub fn bind(
         });
         rejections.add(&rej);
         pairs.extend(found);
+        // Keep at most `max_views` per vertex as the photographs come, so that the pairs
+        // stay within twice the binding's final size whatever the number of photographs.
+        if opts.max_views > 0 && pairs.len() > 2 * nv.max(1) * opts.max_views {
+            let all = std::mem::take(&mut pairs);
+            pairs = heaviest_views(all, nv, opts.max_views, &mut rejections, &mut per_photo);
+        }
         Ok(())
     })?;
     progress.finish();
+    if opts.max_views > 0 {
+        pairs = heaviest_views(pairs, nv, opts.max_views, &mut rejections, &mut per_photo);
+    }
     // Counting sort by vertex; within a vertex the photo order is kept (pairs arrive by photo).
     let mut offsets = vec![0u32; nv + 1];
     for (v, _) in &pairs {
@@ -714,6 +731,53 @@ pub(crate) fn consistent(colors: &[[f32; 3]], threshold: f32) -> Vec<bool> {
 /// differences between photographs usually are.
 const BRIGHTNESS_RATIO: f32 = 2.5;
 
+/// Keeps, per vertex, the `k` heaviest of `pairs` (ties: the earlier photograph), grouped by
+/// vertex and in photograph order within one; counts the others as
+/// [`Rejections::lighter`]. The heaviest `k` of a set are those of the heaviest `k` of a
+/// part and the rest, so cutting as the photographs come gives what one cut at the end would.
+fn heaviest_views(
+    pairs: Vec<(u32, ViewSample)>,
+    nv: usize,
+    k: usize,
+    rej: &mut Rejections,
+    per_photo: &mut [PhotoBinding],
+) -> Vec<(u32, ViewSample)> {
+    let mut offsets = vec![0usize; nv + 1];
+    for (v, _) in &pairs {
+        offsets[*v as usize + 1] += 1;
+    }
+    for i in 0..nv {
+        offsets[i + 1] += offsets[i];
+    }
+    let mut fill = offsets.clone();
+    let mut rows = vec![(0u32, ViewSample::default()); pairs.len()];
+    for p in pairs {
+        rows[fill[p.0 as usize]] = p;
+        fill[p.0 as usize] += 1;
+    }
+    let mut out = Vec::with_capacity(rows.len().min(nv * k));
+    for v in 0..nv {
+        let row = &mut rows[offsets[v]..offsets[v + 1]];
+        if row.len() > k {
+            row.sort_by(|a, b| {
+                b.1.weight
+                    .total_cmp(&a.1.weight)
+                    .then(a.1.photo.cmp(&b.1.photo))
+            });
+            for (_, s) in &row[k..] {
+                rej.lighter += 1;
+                rej.kept -= 1;
+                per_photo[s.photo as usize].vertices -= 1;
+            }
+            row[..k].sort_by_key(|p| p.1.photo);
+            out.extend_from_slice(&row[..k]);
+        } else {
+            out.extend_from_slice(row);
+        }
+    }
+    out
+}
+
 /// Drops, per vertex, the views [`consistent`] rejects.
 fn drop_inconsistent(b: &mut Binding, threshold: f32) {
     let nv = b.offsets.len() - 1;
@@ -751,6 +815,84 @@ fn drop_inconsistent(b: &mut Binding, threshold: f32) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Views of `nv` vertices from `photos` photographs, by photograph, with pseudo-random
+    /// weights (some equal, to exercise the tie rule) and some vertices unseen by some.
+    fn views(nv: u32, photos: u32) -> Vec<(u32, ViewSample)> {
+        let mut out = Vec::new();
+        let mut x = 12345u64;
+        for p in 0..photos {
+            for v in 0..nv {
+                x = x
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                if (x >> 60) < 3 {
+                    continue;
+                }
+                let weight = ((x >> 40) % 7) as f32;
+                out.push((
+                    v,
+                    ViewSample {
+                        photo: p,
+                        color: [0.5; 3],
+                        weight,
+                    },
+                ));
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn cutting_views_as_photographs_come_keeps_the_heaviest_in_photo_order() {
+        let (nv, photos, k) = (50u32, 40u32, 6usize);
+        let all = views(nv, photos);
+        let bookkeeping = || {
+            let mut rej = Rejections {
+                kept: all.len() as u64,
+                ..Default::default()
+            };
+            let mut per = vec![0u64; photos as usize];
+            for (_, s) in &all {
+                per[s.photo as usize] += 1;
+            }
+            let per: Vec<PhotoBinding> = per
+                .into_iter()
+                .map(|vertices| PhotoBinding {
+                    name: String::new(),
+                    vertices,
+                    background: None,
+                })
+                .collect();
+            rej.kept = all.len() as u64;
+            (rej, per)
+        };
+        let (mut rej, mut per) = bookkeeping();
+        let once = heaviest_views(all.clone(), nv as usize, k, &mut rej, &mut per);
+        // Against a direct reading of the rule, vertex by vertex.
+        for v in 0..nv {
+            let mut row: Vec<ViewSample> = all.iter().filter(|p| p.0 == v).map(|p| p.1).collect();
+            row.sort_by(|a, b| b.weight.total_cmp(&a.weight).then(a.photo.cmp(&b.photo)));
+            row.truncate(k);
+            row.sort_by_key(|s| s.photo);
+            let got: Vec<ViewSample> = once.iter().filter(|p| p.0 == v).map(|p| p.1).collect();
+            assert_eq!(got, row, "vertex {v}");
+        }
+        assert_eq!(rej.kept, once.len() as u64);
+        assert_eq!(rej.lighter, (all.len() - once.len()) as u64);
+        let per_sum: u64 = per.iter().map(|p| p.vertices).sum();
+        assert_eq!(per_sum, once.len() as u64);
+        // Cut every few photographs as binding does: the same views, the same counts.
+        let (mut rej2, mut per2) = bookkeeping();
+        let mut acc = Vec::new();
+        for chunk in all.chunks(nv as usize * 3) {
+            acc.extend_from_slice(chunk);
+            acc = heaviest_views(acc, nv as usize, k, &mut rej2, &mut per2);
+        }
+        assert_eq!(acc, once);
+        assert_eq!((rej2.kept, rej2.lighter), (rej.kept, rej.lighter));
+        assert!(per2.iter().zip(&per).all(|(a, b)| a.vertices == b.vertices));
+    }
 
     #[test]
     fn consistency_tolerates_gain_and_drops_an_outlier() {

@@ -233,6 +233,10 @@ enum Command {
         /// all.
         #[arg(long, default_value_t = scantex::resample::ResampleOptions::default().max_views, allow_negative_numbers = true, value_parser = number_in(0usize..=1 << 20))]
         max_views: usize,
+        /// Most views binding keeps per vertex, the heaviest; 0 = all. Binding's memory is
+        /// then flat in the number of photographs.
+        #[arg(long, default_value_t = scantex::bind::BindOptions::default().max_views, allow_negative_numbers = true, value_parser = number_in(0usize..=1 << 20))]
+        vertex_views: usize,
         /// Gutter texels filled by extending chart colours.
         #[arg(long, default_value_t = scantex::resample::ResampleOptions::default().gutter_fill, allow_negative_numbers = true, value_parser = number_in(0u32..=1024))]
         gutter_fill: u32,
@@ -689,6 +693,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             seed,
             depth_resolution,
             max_views,
+            vertex_views,
             gutter_fill,
             debug_dir,
             quiet,
@@ -757,6 +762,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             opts.bind.depth_resolution = depth_resolution;
             opts.resample.gutter_fill = gutter_fill;
             opts.resample.max_views = max_views;
+            opts.bind.max_views = vertex_views;
             opts.format = format;
             let progress: Box<dyn scantex::progress::Progress> = if quiet {
                 Box::new(scantex::progress::Silent)

@@ -1230,7 +1230,12 @@ fn option_values_the_library_refuses_name_the_option() {
     // A fixed page the limit cannot hold fails before any work, with the estimate.
     names(
         &texture_fails(d.path(), &["--size", "8192", "--memory-limit", "1G"]),
-        &["--memory-limit", "would need about", "a 8192 page", "limit of 1.0 GiB"],
+        &[
+            "--memory-limit",
+            "would need about",
+            "a 8192 page",
+            "limit of 1.0 GiB",
+        ],
     );
     names(
         &texture_fails(d.path(), &["--memory-limit", "20M"]),

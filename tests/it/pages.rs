@@ -166,7 +166,10 @@ fn a_memory_limit_makes_smaller_pages_and_the_run_stays_within_it() {
     };
     let limit = 256u64 << 20;
     let (limited, stderr) = run("limited", &["--memory-limit", "256M"]);
-    assert!(stderr.contains("pages of at most 1024 texels instead of 8192"), "{stderr}");
+    assert!(
+        stderr.contains("pages of at most 1024 texels instead of 8192"),
+        "{stderr}"
+    );
     assert_eq!(limited["memory"]["limit_bytes"], limit);
     assert_eq!(limited["memory"]["max_side"], 1024);
     let pages = limited["pages"].as_array().unwrap().len();
