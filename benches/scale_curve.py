@@ -81,7 +81,7 @@ def main():
             print(f"| {faces} | {photos} | failed: {r.stderr.strip().splitlines()[-1]} |")
             continue
         lines = r.stderr.splitlines()
-        peak = int([l for l in lines if "Maximum resident" in l][0].split()[-1]) / 1024
+        peak = int([l for l in lines if "Maximum resident" in l][0].split()[-1]) * 1024 / 1e6
         wall = [l for l in lines if "Elapsed (wall clock)" in l][0].split()[-1]
         m, s = wall.split(":")[-2:]
         wall = float(m) * 60 + float(s)

@@ -14,7 +14,7 @@ pub(super) fn add_photo(
     acc: &mut ChartAcc,
     ring: Option<&[Vec<u32>]>,
     face_ref: &[f32],
-    face_full: &[Vec<u32>],
+    face_full: &super::FaceLists,
     mopts: &MergeOptions,
     cpu_sampling: &AtomicU64,
 ) {
@@ -70,7 +70,7 @@ pub(super) fn add_photo(
             _ if reference > 0.0 => (wt / reference).min(1.0),
             _ => 1.0,
         };
-        let full = &face_full[f as usize];
+        let full = face_full.get(f as usize);
         if ch.levels > 0 && !full.is_empty() && full.binary_search(&photo).is_err() {
             // Coarse: one sample per 2 x 2 texels, for the coarser bands; these texels count
             // as seen (never in the finest band: theirs is not known).
