@@ -304,7 +304,6 @@ pub struct Rejections {
 
 impl Rejections {
     fn add(&mut self, o: &Rejections) {
-        self.lighter += o.lighter;
         self.outside += o.outside;
         self.facing += o.facing;
         self.silhouette += o.silhouette;
@@ -312,6 +311,7 @@ impl Rejections {
         self.mask += o.mask;
         self.background += o.background;
         self.inconsistent += o.inconsistent;
+        self.lighter += o.lighter;
         self.kept += o.kept;
     }
 }
@@ -642,35 +642,20 @@ pub fn bind(
         // stay within twice the binding's final size whatever the number of photographs.
         if opts.max_views > 0 && pairs.len() > 2 * nv.max(1) * opts.max_views {
             let all = std::mem::take(&mut pairs);
-            pairs = heaviest_views(all, nv, opts.max_views, &mut rejections, &mut per_photo);
+            let (off, kept) = group_views(all, nv, opts.max_views, &mut rejections, &mut per_photo);
+            pairs = (0..nv)
+                .flat_map(|v| {
+                    kept[off[v] as usize..off[v + 1] as usize]
+                        .iter()
+                        .map(move |s| (v as u32, *s))
+                })
+                .collect();
         }
         Ok(())
     })?;
     progress.finish();
-    if opts.max_views > 0 {
-        pairs = heaviest_views(pairs, nv, opts.max_views, &mut rejections, &mut per_photo);
-    }
-    // Counting sort by vertex; within a vertex the photo order is kept (pairs arrive by photo).
-    let mut offsets = vec![0u32; nv + 1];
-    for (v, _) in &pairs {
-        offsets[*v as usize + 1] += 1;
-    }
-    for i in 0..nv {
-        offsets[i + 1] += offsets[i];
-    }
-    let mut fill = offsets.clone();
-    let mut samples = vec![
-        ViewSample {
-            photo: 0,
-            color: [0.0; 3],
-            weight: 0.0
-        };
-        pairs.len()
-    ];
-    for (v, s) in pairs {
-        samples[fill[v as usize] as usize] = s;
-        fill[v as usize] += 1;
-    }
+    let (offsets, samples) =
+        group_views(pairs, nv, opts.max_views, &mut rejections, &mut per_photo);
     let mut binding = Binding {
         offsets,
         samples,
@@ -731,18 +716,19 @@ pub(crate) fn consistent(colors: &[[f32; 3]], threshold: f32) -> Vec<bool> {
 /// differences between photographs usually are.
 const BRIGHTNESS_RATIO: f32 = 2.5;
 
-/// Keeps, per vertex, the `k` heaviest of `pairs` (ties: the earlier photograph), grouped by
-/// vertex and in photograph order within one; counts the others as
-/// [`Rejections::lighter`]. The heaviest `k` of a set are those of the heaviest `k` of a
-/// part and the rest, so cutting as the photographs come gives what one cut at the end would.
-fn heaviest_views(
+/// Groups `pairs` by vertex into compressed rows (offsets, views), in photograph order within
+/// a vertex (pairs arrive by photograph), keeping the `k` heaviest per vertex (ties: the
+/// earlier photograph; `k` 0 keeps all) and counting the others as [`Rejections::lighter`].
+/// The heaviest `k` of a set are those of the heaviest `k` of a part and the rest, so cutting
+/// as the photographs come gives what one cut at the end would.
+fn group_views(
     pairs: Vec<(u32, ViewSample)>,
     nv: usize,
     k: usize,
     rej: &mut Rejections,
     per_photo: &mut [PhotoBinding],
-) -> Vec<(u32, ViewSample)> {
-    let mut offsets = vec![0usize; nv + 1];
+) -> (Vec<u32>, Vec<ViewSample>) {
+    let mut offsets = vec![0u32; nv + 1];
     for (v, _) in &pairs {
         offsets[*v as usize + 1] += 1;
     }
@@ -750,32 +736,33 @@ fn heaviest_views(
         offsets[i + 1] += offsets[i];
     }
     let mut fill = offsets.clone();
-    let mut rows = vec![(0u32, ViewSample::default()); pairs.len()];
-    for p in pairs {
-        rows[fill[p.0 as usize]] = p;
-        fill[p.0 as usize] += 1;
+    let mut rows = vec![ViewSample::default(); pairs.len()];
+    for (v, s) in pairs {
+        rows[fill[v as usize] as usize] = s;
+        fill[v as usize] += 1;
     }
-    let mut out = Vec::with_capacity(rows.len().min(nv * k));
+    if k == 0 || offsets.windows(2).all(|w| (w[1] - w[0]) as usize <= k) {
+        return (offsets, rows);
+    }
+    let mut kept_offsets = vec![0u32; nv + 1];
+    let mut kept = Vec::with_capacity(rows.len().min(nv * k));
     for v in 0..nv {
-        let row = &mut rows[offsets[v]..offsets[v + 1]];
+        let row = &mut rows[offsets[v] as usize..offsets[v + 1] as usize];
         if row.len() > k {
-            row.sort_by(|a, b| {
-                b.1.weight
-                    .total_cmp(&a.1.weight)
-                    .then(a.1.photo.cmp(&b.1.photo))
-            });
-            for (_, s) in &row[k..] {
+            row.sort_by(|a, b| b.weight.total_cmp(&a.weight).then(a.photo.cmp(&b.photo)));
+            for s in &row[k..] {
                 rej.lighter += 1;
                 rej.kept -= 1;
                 per_photo[s.photo as usize].vertices -= 1;
             }
-            row[..k].sort_by_key(|p| p.1.photo);
-            out.extend_from_slice(&row[..k]);
+            row[..k].sort_by_key(|s| s.photo);
+            kept.extend_from_slice(&row[..k]);
         } else {
-            out.extend_from_slice(row);
+            kept.extend_from_slice(row);
         }
+        kept_offsets[v + 1] = kept.len() as u32;
     }
-    out
+    (kept_offsets, kept)
 }
 
 /// Drops, per vertex, the views [`consistent`] rejects.
@@ -848,7 +835,7 @@ mod tests {
         let (nv, photos, k) = (50u32, 40u32, 6usize);
         let all = views(nv, photos);
         let bookkeeping = || {
-            let mut rej = Rejections {
+            let rej = Rejections {
                 kept: all.len() as u64,
                 ..Default::default()
             };
@@ -864,11 +851,20 @@ mod tests {
                     background: None,
                 })
                 .collect();
-            rej.kept = all.len() as u64;
             (rej, per)
         };
+        // The grouped rows back as (vertex, view) pairs.
+        let pairs = |(off, views): (Vec<u32>, Vec<ViewSample>)| -> Vec<(u32, ViewSample)> {
+            (0..nv as usize)
+                .flat_map(|v| {
+                    views[off[v] as usize..off[v + 1] as usize]
+                        .iter()
+                        .map(move |s| (v as u32, *s))
+                })
+                .collect()
+        };
         let (mut rej, mut per) = bookkeeping();
-        let once = heaviest_views(all.clone(), nv as usize, k, &mut rej, &mut per);
+        let once = pairs(group_views(all.clone(), nv as usize, k, &mut rej, &mut per));
         // Against a direct reading of the rule, vertex by vertex.
         for v in 0..nv {
             let mut row: Vec<ViewSample> = all.iter().filter(|p| p.0 == v).map(|p| p.1).collect();
@@ -887,7 +883,7 @@ mod tests {
         let mut acc = Vec::new();
         for chunk in all.chunks(nv as usize * 3) {
             acc.extend_from_slice(chunk);
-            acc = heaviest_views(acc, nv as usize, k, &mut rej2, &mut per2);
+            acc = pairs(group_views(acc, nv as usize, k, &mut rej2, &mut per2));
         }
         assert_eq!(acc, once);
         assert_eq!((rej2.kept, rej2.lighter), (rej.kept, rej.lighter));

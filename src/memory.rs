@@ -159,7 +159,7 @@ pub struct Estimate {
     /// The mesh with its atlas and per-face records ([`FACE_BYTES`] per face).
     pub mesh: u64,
     /// The binding's views ([`VIEW_BYTES`] each; counted once binding is done, assumed
-    /// [`ASSUMED_VIEWS`] per vertex before).
+    /// [`ASSUMED_VIEWS`] per vertex, or the binding cap if lower, before).
     pub binding: u64,
     /// Two photographs in flight ([`PHOTO_PIXEL_BYTES`] per pixel of the largest).
     pub photos: u64,

@@ -456,7 +456,7 @@ impl StageLog {
 pub const MIN_PAGE_UNDER_LIMIT: u32 = 1024;
 
 /// The UDIM tile of page `p` of `count`, when there are several.
-fn ctx_tile(count: u32, p: u32) -> Option<u32> {
+fn page_tile(count: u32, p: u32) -> Option<u32> {
     (count > 1).then_some(1001 + p)
 }
 
@@ -573,8 +573,11 @@ pub fn texture_with(
         .map(|p| u64::from(p.view.camera.width) * u64::from(p.view.camera.height))
         .max()
         .unwrap_or(0);
-    let assumed_views =
-        welded.num_vertices() as u64 * memory::ASSUMED_VIEWS.min(photos.len() as u64);
+    let mut per_vertex = memory::ASSUMED_VIEWS.min(photos.len() as u64);
+    if opts.bind.max_views > 0 {
+        per_vertex = per_vertex.min(opts.bind.max_views as u64);
+    }
+    let assumed_views = welded.num_vertices() as u64 * per_vertex;
     let mut estimate = Estimate::new(welded.num_faces() as u64, assumed_views, photo_pixels, 0);
     let mut max_size = opts.max_size;
     let mut warnings = Vec::new();
@@ -734,13 +737,13 @@ pub fn texture_with(
             up,
             opts,
             progress,
-            tile: ctx_tile(count, p),
+            tile: page_tile(count, p),
         };
         let atlas = pages.atlas(&m, p)?;
         let (page, report) = texture_page(&ctx, &atlas, 1001 + p, &mut log)?;
         drop(atlas);
         done.extend(on_page(&m, count, page)?);
-        log.end("output", ctx_tile(count, p));
+        log.end("output", page_tile(count, p));
         page_reports.push(report);
     }
     if let (Some(o), Some(uv)) = (original, &mut m.uv) {
