@@ -556,8 +556,9 @@ impl SceneArgs {
 struct ViewArgs {
     /// Scene directory holding a mesh file, sparse/ (or sparse/0/), images/ and optionally masks/.
     scene: Option<PathBuf>,
-    /// COLMAP model directory (text or binary), a Meshroom cameras.sfm, or a Bundler .out
-    /// (its image list beside it as <file>.list.txt or list.txt; image sizes come from the
+    /// COLMAP model directory (text or binary), a Meshroom cameras.sfm, a Bundler .out (its
+    /// image list beside it as <file>.list.txt or list.txt), a VisualSFM .nvm or an OpenMVS
+    /// interface .mvs (Bundler and VisualSFM store no image size: it comes from the
     /// photographs); overrides the scene directory's (sparse/, sparse/0/ or cameras.sfm).
     #[arg(long)]
     colmap: Option<PathBuf>,

@@ -490,10 +490,15 @@ pub fn mean_up(photos: &[Photo]) -> Vector3<f64> {
 }
 
 /// Mean viewing direction of the photographs, if they agree enough to have one.
+///
+/// Rounded to 1e-9 per component: the stretch minimisation's path depends on its last
+/// digits, and the same poses stored by another format (a quaternion against a matrix, a
+/// centre against a translation) differ there; rounded, they give the same atlas
+/// (`docs/decisions.md`, "OpenMVS scenes").
 pub fn mean_view_dir(photos: &[Photo]) -> Option<Vector3<f64>> {
     let sum: Vector3<f64> = photos.iter().map(|p| p.view.pose.view_dir()).sum();
     let mean = sum / photos.len().max(1) as f64;
-    (mean.norm() >= 0.3).then(|| mean.normalize())
+    (mean.norm() >= 0.3).then(|| mean.normalize().map(|c| (c * 1e9).round() / 1e9))
 }
 
 /// Runs every stage on `mesh` and `photos`; the product keeps every page.

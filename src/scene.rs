@@ -5,7 +5,7 @@
 
 use crate::camera::colmap::{self, Reconstruction};
 use crate::camera::PosedCamera;
-use crate::camera::{bundler, meshroom};
+use crate::camera::{bundler, meshroom, nvm, openmvs};
 use crate::error::{Error, Result};
 use crate::io::image::PhotoPixels;
 use crate::io::{self, MeshFormat};
@@ -67,9 +67,7 @@ impl SceneSpec {
         };
         let colmap = match (&self.colmap, &self.dir) {
             // A Meshroom camera file stands where a COLMAP model would.
-            (Some(c), _) if meshroom::is_sfm_file(c) || bundler::is_bundle_file(c) => {
-                Some(c.clone())
-            }
+            (Some(c), _) if is_camera_file(c) => Some(c.clone()),
             (Some(c), _) => Some(if colmap::detect_format(c).is_some() {
                 c.clone()
             } else {
@@ -118,13 +116,27 @@ impl SceneSpec {
     }
 }
 
-/// The camera model at `path`: a COLMAP model directory, a Meshroom camera file or a Bundler
-/// file (whose image sizes come from the photographs in `images`).
+/// Whether `path` is a camera file that stands where a COLMAP model directory would: a
+/// Meshroom `cameras.sfm`, a Bundler `.out`, a VisualSFM `.nvm` or an OpenMVS `.mvs`.
+pub fn is_camera_file(path: &Path) -> bool {
+    meshroom::is_sfm_file(path)
+        || bundler::is_bundle_file(path)
+        || nvm::is_nvm_file(path)
+        || openmvs::is_mvs_file(path)
+}
+
+/// The camera model at `path`: a COLMAP model directory or one of the camera files of
+/// [`is_camera_file`] (Bundler and VisualSFM store no image size, and OpenMVS may not: it
+/// comes from the photographs in `images`).
 pub fn read_model(path: &Path, images: Option<&Path>) -> Result<Reconstruction> {
     if meshroom::is_sfm_file(path) {
         meshroom::read(path)
     } else if bundler::is_bundle_file(path) {
         bundler::read(path, images)
+    } else if nvm::is_nvm_file(path) {
+        nvm::read(path, images)
+    } else if openmvs::is_mvs_file(path) {
+        openmvs::read(path, images)
     } else {
         colmap::read(path)
     }

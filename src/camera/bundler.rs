@@ -17,10 +17,7 @@ use std::path::{Path, PathBuf};
 
 /// Whether `path` names a Bundler file (`*.out`).
 pub fn is_bundle_file(path: &Path) -> bool {
-    path.is_file()
-        && path
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("out"))
+    super::is_file_with_extension(path, &["out"])
 }
 
 /// The image list that goes with `bundle`: `<bundle>.list.txt` (as COLMAP exports it), else
@@ -48,27 +45,9 @@ pub fn read(bundle: &Path, images: Option<&Path>) -> Result<Reconstruction> {
     let names: Vec<String> = list_text
         .lines()
         .filter(|l| !l.trim().is_empty())
-        .map(|l| {
-            let first = l.split_whitespace().next().unwrap_or("");
-            first
-                .rsplit(['/', '\\'])
-                .next()
-                .unwrap_or(first)
-                .to_string()
-        })
+        .map(|l| super::file_name(l.split_whitespace().next().unwrap_or("")))
         .collect();
-    let size_of = |name: &str| -> Result<(u32, u32)> {
-        let dir = images.ok_or_else(|| {
-            Error::at_element(
-                bundle,
-                "images",
-                "Bundler files store no image size: give the photographs (--images)",
-            )
-        })?;
-        let p = dir.join(name);
-        image::image_dimensions(&p)
-            .map_err(|e| Error::parse(&p, Location::File, format!("cannot read its size: {e}")))
-    };
+    let size_of = |name: &str| super::photo_size(bundle, images, name);
     parse(bundle, &text, &names, &size_of)
 }
 
@@ -79,35 +58,9 @@ pub fn parse(
     names: &[String],
     size_of: &dyn Fn(&str) -> Result<(u32, u32)>,
 ) -> Result<Reconstruction> {
-    // Numbers with the line each came from, comments skipped.
-    let mut toks = text
-        .lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim_start().starts_with('#'))
-        .flat_map(|(i, l)| l.split_whitespace().map(move |t| (i + 1, t)));
-    let last_line = std::cell::Cell::new(1usize);
-    let mut next = |what: &str| -> Result<f64> {
-        let (line, t) = toks.next().ok_or_else(|| {
-            Error::parse(
-                path,
-                Location::Line(last_line.get()),
-                format!("ends before {what}"),
-            )
-        })?;
-        last_line.set(line);
-        t.parse::<f64>()
-            .ok()
-            .filter(|v| v.is_finite())
-            .ok_or_else(|| {
-                Error::parse(
-                    path,
-                    Location::Line(line),
-                    format!("{what}: '{t}' is not a number"),
-                )
-            })
-    };
-    let ncam = next("the number of cameras")?;
-    let _npts = next("the number of points")?;
+    let mut words = super::Words::new(path, text, Some('#'));
+    let ncam = words.number("the number of cameras")?;
+    let _npts = words.number("the number of points")?;
     if !(ncam >= 0.0 && ncam.fract() == 0.0 && ncam <= 1e7) {
         return Err(Error::parse(
             path,
@@ -130,17 +83,21 @@ pub fn parse(
     let mut rec = Reconstruction::default();
     for (i, name) in names.iter().enumerate() {
         let what = |k: &str| format!("camera {i}'s {k}");
-        let (f, k1, k2) = (next(&what("f"))?, next(&what("k1"))?, next(&what("k2"))?);
+        let (f, k1, k2) = (
+            words.number(&what("f"))?,
+            words.number(&what("k1"))?,
+            words.number(&what("k2"))?,
+        );
         let mut r = Matrix3::zeros();
         for row in 0..3 {
             for col in 0..3 {
-                r[(row, col)] = next(&what("rotation"))?;
+                r[(row, col)] = words.number(&what("rotation"))?;
             }
         }
         let t = Vector3::new(
-            next(&what("translation"))?,
-            next(&what("translation"))?,
-            next(&what("translation"))?,
+            words.number(&what("translation"))?,
+            words.number(&what("translation"))?,
+            words.number(&what("translation"))?,
         );
         if f == 0.0 {
             continue; // not reconstructed
@@ -149,7 +106,7 @@ pub fn parse(
         if f < 0.0 || err > 1e-5 || r.determinant() < 0.0 {
             return Err(Error::parse(
                 path,
-                Location::Line(last_line.get()),
+                Location::Line(words.line()),
                 format!("camera {i}: f = {f}, rotation off by {err:.2e}: not a camera"),
             ));
         }

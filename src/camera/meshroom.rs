@@ -30,10 +30,7 @@ use std::path::Path;
 
 /// Whether `path` names a Meshroom camera file (`.sfm`, or `.json` holding `views`).
 pub fn is_sfm_file(path: &Path) -> bool {
-    path.is_file()
-        && path
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("sfm") || e.eq_ignore_ascii_case("json"))
+    super::is_file_with_extension(path, &["sfm", "json"])
 }
 
 /// Reads a Meshroom `cameras.sfm` (or any SfMData JSON) into a [`Reconstruction`] with no 3D
@@ -122,12 +119,7 @@ pub fn parse(path: &Path, bytes: &[u8]) -> Result<Reconstruction> {
             .get("path")
             .and_then(Value::as_str)
             .ok_or_else(|| bad(elem.clone(), "no path".into()))?;
-        // Either separator: files written on Windows keep theirs.
-        let name = path_str
-            .rsplit(['/', '\\'])
-            .next()
-            .unwrap_or(path_str)
-            .to_string();
+        let name = super::file_name(path_str);
         // A view with no file (synthetic scenes) is named by its id.
         let name = if name.is_empty() {
             format!(

@@ -5,12 +5,108 @@ pub mod bundler;
 pub mod colmap;
 pub mod meshroom;
 mod model;
+pub mod nvm;
 pub mod opencv;
+pub mod openmvs;
 
 pub use model::CameraModel;
 
+use crate::error::{Error, Location, Result};
 use nalgebra::{Point2, Point3, Quaternion, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Whether `path` is a file whose extension is one of `exts` (any case).
+pub(crate) fn is_file_with_extension(path: &Path, exts: &[&str]) -> bool {
+    path.is_file()
+        && path
+            .extension()
+            .is_some_and(|e| exts.iter().any(|x| e.eq_ignore_ascii_case(x)))
+}
+
+/// The file name of a path stored by another program (split at `/` or `\`): camera files
+/// store paths of the machine that made them, and the scene's images directory supplies the
+/// folder.
+pub(crate) fn file_name(stored: &str) -> String {
+    stored
+        .rsplit(['/', '\\'])
+        .next()
+        .unwrap_or(stored)
+        .to_string()
+}
+
+/// The whitespace-separated words of a text camera file with the line each is on, so that
+/// errors name the line.
+pub(crate) struct Words<'a> {
+    path: &'a Path,
+    words: Box<dyn Iterator<Item = (usize, &'a str)> + 'a>,
+    line: usize,
+}
+
+impl<'a> Words<'a> {
+    /// The words of `text`, leaving out lines that start with `comment`.
+    pub(crate) fn new(path: &'a Path, text: &'a str, comment: Option<char>) -> Self {
+        let words = text
+            .lines()
+            .enumerate()
+            .filter(move |(_, l)| comment.is_none_or(|c| !l.trim_start().starts_with(c)))
+            .flat_map(|(i, l)| l.split_whitespace().map(move |t| (i + 1, t)));
+        Words {
+            path,
+            words: Box::new(words),
+            line: 1,
+        }
+    }
+
+    /// The line of the last word read (1 before any).
+    pub(crate) fn line(&self) -> usize {
+        self.line
+    }
+
+    /// An error at the last word's line.
+    pub(crate) fn error(&self, msg: impl Into<String>) -> Error {
+        Error::parse(self.path, Location::Line(self.line), msg)
+    }
+
+    /// The next word, or an error saying what the file ends before.
+    pub(crate) fn word(&mut self, what: &str) -> Result<&'a str> {
+        let (line, t) = self
+            .words
+            .next()
+            .ok_or_else(|| self.error(format!("ends before {what}")))?;
+        self.line = line;
+        Ok(t)
+    }
+
+    /// `word` (the last one read) as a finite number.
+    pub(crate) fn as_number(&self, word: &str, what: &str) -> Result<f64> {
+        word.parse::<f64>()
+            .ok()
+            .filter(|v| v.is_finite())
+            .ok_or_else(|| self.error(format!("{what}: '{word}' is not a number")))
+    }
+
+    /// The next word as a finite number.
+    pub(crate) fn number(&mut self, what: &str) -> Result<f64> {
+        let w = self.word(what)?;
+        self.as_number(w, what)
+    }
+}
+
+/// The size of photograph `name` in `images`, for camera files that do not store it; the
+/// error without `images` names `model` and says what to give.
+pub(crate) fn photo_size(model: &Path, images: Option<&Path>, name: &str) -> Result<(u32, u32)> {
+    let dir = images.ok_or_else(|| {
+        Error::at_element(
+            model,
+            "images",
+            format!("it stores no size for {name}: give the photographs (--images)"),
+        )
+    })?;
+    let p = dir.join(name);
+    image::image_dimensions(&p)
+        .map_err(|e| Error::parse(&p, Location::File, format!("cannot read its size: {e}")))
+}
 
 /// A calibrated camera: model, image size and COLMAP's parameter vector.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

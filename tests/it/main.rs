@@ -8,6 +8,7 @@ mod common;
 mod bad_input;
 mod bundler;
 mod camera_reference;
+mod formats;
 mod kill;
 mod mesh_io;
 mod meshroom;
