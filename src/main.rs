@@ -559,7 +559,8 @@ struct ViewArgs {
     /// COLMAP model directory (text or binary), a Meshroom cameras.sfm, a Bundler .out (its
     /// image list beside it as <file>.list.txt or list.txt), a VisualSFM .nvm or an OpenMVS
     /// interface .mvs (Bundler and VisualSFM store no image size: it comes from the
-    /// photographs); overrides the scene directory's (sparse/, sparse/0/ or cameras.sfm).
+    /// photographs); overrides the scene directory's (sparse/, sparse/0/, cameras.sfm, or its
+    /// one .nvm or .mvs).
     #[arg(long)]
     colmap: Option<PathBuf>,
     /// Photographs directory; overrides the scene directory's images/.

@@ -78,8 +78,12 @@ impl SceneSpec {
                         .into(),
                 })?
             }),
-            (None, Some(d)) => colmap::find_model_dir(d)
-                .or_else(|| Some(d.join("cameras.sfm")).filter(|p| meshroom::is_sfm_file(p))),
+            (None, Some(d)) => match colmap::find_model_dir(d)
+                .or_else(|| Some(d.join("cameras.sfm")).filter(|p| meshroom::is_sfm_file(p)))
+            {
+                Some(m) => Some(m),
+                None => find_camera_file(d)?,
+            },
             (None, None) => None,
         };
         let images = self.images.clone().or_else(|| {
@@ -144,10 +148,31 @@ pub fn read_model(path: &Path, images: Option<&Path>) -> Result<Reconstruction> 
 
 /// The single mesh file at the top of `dir`, if any; an error if there are several.
 fn find_mesh(dir: &Path) -> Result<Option<PathBuf>> {
+    find_one(dir, "mesh files", "--mesh", &|p| {
+        p.is_file() && MeshFormat::from_path(p).is_some()
+    })
+}
+
+/// The single VisualSFM `.nvm` or OpenMVS `.mvs` at the top of `dir`, if any (a scene folder
+/// as those tools leave it); an error if there are several.
+fn find_camera_file(dir: &Path) -> Result<Option<PathBuf>> {
+    find_one(dir, "camera files", "--colmap", &|p| {
+        nvm::is_nvm_file(p) || openmvs::is_mvs_file(p)
+    })
+}
+
+/// The single file at the top of `dir` that `keep` accepts, if any; an error naming them and
+/// `option` if there are several.
+fn find_one(
+    dir: &Path,
+    what: &str,
+    option: &str,
+    keep: &dyn Fn(&Path) -> bool,
+) -> Result<Option<PathBuf>> {
     let entries = std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))?;
     let mut found: Vec<PathBuf> = entries
         .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.is_file() && MeshFormat::from_path(p).is_some())
+        .filter(|p| keep(p))
         .collect();
     found.sort();
     match found.len() {
@@ -156,7 +181,7 @@ fn find_mesh(dir: &Path) -> Result<Option<PathBuf>> {
         _ => Err(Error::Directory {
             path: dir.to_path_buf(),
             msg: format!(
-                "several mesh files ({}); choose one with --mesh",
+                "several {what} ({}); choose one with {option}",
                 found
                     .iter()
                     .map(|p| p

@@ -73,6 +73,26 @@ fn directory_layouts_resolve() {
         Some(other.path().join("sparse").as_path())
     );
     assert_eq!(p.mesh.as_deref(), Some(Path::new("x.obj")));
+    // A folder as VisualSFM or OpenMVS leave it: its one camera file stands for sparse/.
+    let vsfm = tempfile::tempdir().unwrap();
+    std::fs::write(vsfm.path().join("model.nvm"), "NVM_V3\n0\n").unwrap();
+    let found = |d: &Path| {
+        SceneSpec {
+            dir: Some(d.into()),
+            ..Default::default()
+        }
+        .resolve()
+    };
+    assert_eq!(
+        found(vsfm.path()).unwrap().colmap.as_deref(),
+        Some(vsfm.path().join("model.nvm").as_path())
+    );
+    std::fs::write(vsfm.path().join("scene.mvs"), "").unwrap();
+    let e = found(vsfm.path()).unwrap_err().to_string();
+    assert!(
+        e.contains("model.nvm, scene.mvs") && e.contains("--colmap"),
+        "{e}"
+    );
     // Two meshes: the user must choose.
     std::fs::write(root.join("other.obj"), "").unwrap();
     let e = SceneSpec {
