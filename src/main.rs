@@ -563,7 +563,8 @@ struct ViewArgs {
     /// one .nvm or .mvs).
     #[arg(long)]
     colmap: Option<PathBuf>,
-    /// Photographs directory; overrides the scene directory's images/.
+    /// Photographs directory; overrides the scene directory's images/ (or, for a camera
+    /// file given alone with --colmap, the images/ beside it).
     #[arg(long)]
     images: Option<PathBuf>,
     /// Object masks directory (white = object); overrides the scene directory's masks/.

@@ -86,9 +86,16 @@ impl SceneSpec {
             },
             (None, None) => None,
         };
+        // Without a scene folder, a camera file's own folder may hold images/ (OpenMVS and
+        // VisualSFM name the photographs relative to it).
+        let camera_folder = colmap
+            .as_deref()
+            .filter(|c| is_camera_file(c))
+            .and_then(Path::parent);
         let images = self.images.clone().or_else(|| {
             self.dir
-                .as_ref()
+                .as_deref()
+                .or(camera_folder)
                 .map(|d| d.join("images"))
                 .filter(|p| p.is_dir())
         });

@@ -87,6 +87,18 @@ fn directory_layouts_resolve() {
         found(vsfm.path()).unwrap().colmap.as_deref(),
         Some(vsfm.path().join("model.nvm").as_path())
     );
+    // Given without the folder, its images/ is still found beside it.
+    std::fs::create_dir(vsfm.path().join("images")).unwrap();
+    let p = SceneSpec {
+        colmap: Some(vsfm.path().join("model.nvm")),
+        ..Default::default()
+    }
+    .resolve()
+    .unwrap();
+    assert_eq!(
+        p.images.as_deref(),
+        Some(vsfm.path().join("images").as_path())
+    );
     std::fs::write(vsfm.path().join("scene.mvs"), "").unwrap();
     let e = found(vsfm.path()).unwrap_err().to_string();
     assert!(
