@@ -25,7 +25,8 @@ from PIL import Image
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DATA = os.path.join(ROOT, "..", "shared", "data")
-BIN = os.path.join(ROOT, "target", "release", "scantex")
+# SCANTEX_BIN runs another build (a copy, so that rebuilding during a long run is safe).
+BIN = os.environ.get("SCANTEX_BIN", os.path.join(ROOT, "target", "release", "scantex"))
 SCALE = 5
 PHOTOS = 50
 
