@@ -30,6 +30,7 @@ pub(crate) fn for_each_photo(
 ) -> Result<()> {
     for_each_photo_with(
         photos,
+        None,
         progress,
         |_, _| (),
         |i, rgb, mask, ()| work(i, rgb, mask),
@@ -38,29 +39,39 @@ pub(crate) fn for_each_photo(
 
 /// [`for_each_photo`] with a per-photograph `prepare` step (depth map, mip pyramid) that runs
 /// with the decoding, beside `work` on the previous photograph, and whose result `work` gets.
+/// With `wanted`, only the photographs it marks are decoded and worked on (in order): a
+/// page's charts are seen by some of the photographs, and decoding is most of a photograph's
+/// cost.
 pub(crate) fn for_each_photo_with<T: Send>(
     photos: &[Photo],
+    wanted: Option<&[bool]>,
     progress: &dyn Progress,
     prepare: impl Fn(usize, &PhotoPixels) -> T + Sync,
     mut work: impl FnMut(usize, &PhotoPixels, Option<&GrayImage>, T) -> Result<()> + Send,
 ) -> Result<()> {
-    if photos.is_empty() {
+    let order: Vec<usize> = (0..photos.len())
+        .filter(|&i| wanted.is_none_or(|w| w.get(i).copied().unwrap_or(false)))
+        .collect();
+    // The ones left out count as done at once, so progress still ends at the total.
+    progress.advance((photos.len() - order.len()) as u64);
+    let Some(&first) = order.first() else {
         return Ok(());
-    }
+    };
     let load = |i: usize, spare: Vec<u8>| -> Result<(Decoded, T)> {
         let d = decode(&photos[i], spare)?;
         let t = prepare(i, &d.rgb);
         Ok((d, t))
     };
-    let mut current = load(0, Vec::new())?;
+    let mut current = load(first, Vec::new())?;
     // The buffer of the photograph before the current one, for the next one to decode into.
     let mut spare = Vec::new();
-    for i in 0..photos.len() {
+    for (k, &i) in order.iter().enumerate() {
         let (cur, extra) = current;
         let (next, done) = rayon::join(
             || {
-                (i + 1 < photos.len())
-                    .then(|| load(i + 1, std::mem::take(&mut spare)))
+                order
+                    .get(k + 1)
+                    .map(|&j| load(j, std::mem::take(&mut spare)))
                     .transpose()
             },
             || work(i, &cur.rgb, cur.mask.as_ref(), extra),

@@ -304,6 +304,9 @@ pub struct MergeStats {
     /// Seconds of the complement layers, the collapse of every chart and its copy into the
     /// atlas.
     pub seconds_collapse: f64,
+    /// Photographs decoded for this page: those some face on it samples (the others have
+    /// nothing to give it).
+    pub photos_decoded: usize,
     /// Chart-border levelling after the merge, if it ran.
     pub seam_levelling: Option<level::LevelStats>,
     /// The same on the restored atlas ([`relevel`]), if it ran (set by the caller).
@@ -462,31 +465,38 @@ fn multiband(
     let heap = crate::io::LargeBlocksInHeap::new();
     // The next photograph's depth map and mip levels are built while this one is sampled.
     let setup = |pi: usize, rgb: &crate::io::image::PhotoPixels| prep.photo_setup(photos, pi, rgb);
-    for_each_photo_with(photos, progress, setup, |pi, rgb, mask, setup| {
-        seconds_setup += setup.seconds;
-        let ph = prep.photo_with(photos, pi, rgb, mask, setup);
-        let t = std::time::Instant::now();
-        // One task per chart, largest first: rayon's adaptive split hands each core a run of
-        // charts, and a run holding the largest ones left the other core idle (the corset's
-        // photo loop took 3.6 s on two cores and 3.3 s on one).
-        let mut jobs: Vec<(&mut ChartAcc, &Chart)> = accs.iter_mut().zip(&charts).collect();
-        jobs.sort_by_key(|(_, ch)| std::cmp::Reverse(ch.w * ch.h));
-        jobs.into_par_iter().with_max_len(1).for_each(|(acc, ch)| {
-            add_photo(
-                prep,
-                &ph,
-                ch,
-                acc,
-                ring.as_deref(),
-                &face_ref,
-                &face_full,
-                mopts,
-                &cpu_sampling,
-            )
-        });
-        seconds_charts += t.elapsed().as_secs_f64();
-        Ok(())
-    })?;
+    let wanted = prep.photos_on_page(photos.len());
+    for_each_photo_with(
+        photos,
+        Some(&wanted),
+        progress,
+        setup,
+        |pi, rgb, mask, setup| {
+            seconds_setup += setup.seconds;
+            let ph = prep.photo_with(photos, pi, rgb, mask, setup);
+            let t = std::time::Instant::now();
+            // One task per chart, largest first: rayon's adaptive split hands each core a run of
+            // charts, and a run holding the largest ones left the other core idle (the corset's
+            // photo loop took 3.6 s on two cores and 3.3 s on one).
+            let mut jobs: Vec<(&mut ChartAcc, &Chart)> = accs.iter_mut().zip(&charts).collect();
+            jobs.sort_by_key(|(_, ch)| std::cmp::Reverse(ch.w * ch.h));
+            jobs.into_par_iter().with_max_len(1).for_each(|(acc, ch)| {
+                add_photo(
+                    prep,
+                    &ph,
+                    ch,
+                    acc,
+                    ring.as_deref(),
+                    &face_ref,
+                    &face_full,
+                    mopts,
+                    &cpu_sampling,
+                )
+            });
+            seconds_charts += t.elapsed().as_secs_f64();
+            Ok(())
+        },
+    )?;
     progress.finish();
     drop(heap);
     // The finest band's weights matter no more but for the coverage of charts without
@@ -562,6 +572,7 @@ fn multiband(
     let stats = MergeStats {
         cpu_seconds_sampling: cpu_sampling.load(Ordering::Relaxed) as f64 * 1e-9,
         seconds_collapse,
+        photos_decoded: wanted.iter().filter(|&&w| w).count(),
         seam_levelling: levelling,
         seam_levelling_after_restore: None,
     };

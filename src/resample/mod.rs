@@ -268,46 +268,53 @@ pub fn resample_with(
     progress.start("resampling", photos.len() as u64);
     // The next photograph's depth map and mip levels are built while this one is sampled.
     let setup = |pi: usize, rgb: &PhotoPixels| prep.photo_setup(photos, pi, rgb);
-    for_each_photo_with(photos, progress, setup, |pi, rgb, mask, setup| {
-        seconds_photo_setup += setup.seconds;
-        let ph = prep.photo_with(photos, pi, rgb, mask, setup);
-        let photo = pi as u32;
-        let texels = std::time::Instant::now();
-        acc.par_chunks_mut(BAND * n)
-            .zip(views.par_chunks_mut(BAND * n))
-            .zip(best.par_chunks_mut(BAND * n))
-            .zip(prep.atlas.texels.bands.par_iter())
-            .enumerate()
-            .for_each(|(bi, (((acc, views), best), list))| {
-                let y0 = bi * BAND;
-                let y1 = y0 + acc.len() / n;
-                for &f in list {
-                    if !ph.samples(f) {
-                        continue;
+    let wanted = prep.photos_on_page(photos.len());
+    for_each_photo_with(
+        photos,
+        Some(&wanted),
+        progress,
+        setup,
+        |pi, rgb, mask, setup| {
+            seconds_photo_setup += setup.seconds;
+            let ph = prep.photo_with(photos, pi, rgb, mask, setup);
+            let photo = pi as u32;
+            let texels = std::time::Instant::now();
+            acc.par_chunks_mut(BAND * n)
+                .zip(views.par_chunks_mut(BAND * n))
+                .zip(best.par_chunks_mut(BAND * n))
+                .zip(prep.atlas.texels.bands.par_iter())
+                .enumerate()
+                .for_each(|(bi, (((acc, views), best), list))| {
+                    let y0 = bi * BAND;
+                    let y1 = y0 + acc.len() / n;
+                    for &f in list {
+                        if !ph.samples(f) {
+                            continue;
+                        }
+                        prep.sample_face(&ph, f, y0, y1, None, |x, y, c, w| {
+                            let i = (y - y0) * n + x;
+                            let a = &mut acc[i];
+                            // Photographs come in order, so ties keep the first: deterministic.
+                            if w > a[3] {
+                                best[i] = photo as u16;
+                                if winner {
+                                    *a = [c[0], c[1], c[2], w];
+                                }
+                            }
+                            if !winner {
+                                for k in 0..3 {
+                                    a[k] += w * c[k];
+                                }
+                                a[3] += w;
+                            }
+                            views[i] = views[i].saturating_add(1);
+                        });
                     }
-                    prep.sample_face(&ph, f, y0, y1, None, |x, y, c, w| {
-                        let i = (y - y0) * n + x;
-                        let a = &mut acc[i];
-                        // Photographs come in order, so ties keep the first: deterministic.
-                        if w > a[3] {
-                            best[i] = photo as u16;
-                            if winner {
-                                *a = [c[0], c[1], c[2], w];
-                            }
-                        }
-                        if !winner {
-                            for k in 0..3 {
-                                a[k] += w * c[k];
-                            }
-                            a[3] += w;
-                        }
-                        views[i] = views[i].saturating_add(1);
-                    });
-                }
-            });
-        seconds_texels += texels.elapsed().as_secs_f64();
-        Ok(())
-    })?;
+                });
+            seconds_texels += texels.elapsed().as_secs_f64();
+            Ok(())
+        },
+    )?;
     progress.finish();
     // Resolve every chart texel: photographs, else vertex colours.
     let mut color = vec![0f32; n * n * 3];

@@ -317,6 +317,30 @@ impl<'a> Sampler<'a> {
         self.common.of(f).binary_search(&photo).is_ok()
     }
 
+    /// Which of `n` photographs some face on this page samples: the others have nothing to
+    /// give the page and need not be decoded for it.
+    pub fn photos_on_page(&self, n: usize) -> Vec<bool> {
+        (0..self.mesh.num_faces())
+            .into_par_iter()
+            .filter(|&f| self.atlas.face_rect(f).is_some())
+            .fold(
+                || vec![false; n],
+                |mut w, f| {
+                    for &p in self.common.of(f) {
+                        w[p as usize] = true;
+                    }
+                    w
+                },
+            )
+            .reduce(
+                || vec![false; n],
+                |mut a, b| {
+                    a.iter_mut().zip(b).for_each(|(x, y)| *x |= y);
+                    a
+                },
+            )
+    }
+
     /// Texel rows and columns (inclusive) face `f` may own, if it lies on the page.
     pub fn face_rect(&self, f: usize) -> Option<((usize, usize), (usize, usize))> {
         self.atlas.face_rect(f)
