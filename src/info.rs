@@ -198,7 +198,15 @@ impl fmt::Display for InfoReport {
         };
         writeln!(f, "scene")?;
         writeln!(f, "  mesh     {}", show(&self.paths.mesh))?;
-        writeln!(f, "  colmap   {}", show(&self.paths.colmap))?;
+        // The JSON keeps the key `colmap`; people read which format it is.
+        let cameras = self
+            .paths
+            .colmap
+            .as_deref()
+            .map_or("(none)".to_string(), |p| {
+                format!("{} ({})", p.display(), crate::scene::camera_format(p))
+            });
+        writeln!(f, "  cameras  {cameras}")?;
         writeln!(f, "  images   {}", show(&self.paths.images))?;
         writeln!(f, "  masks    {}", show(&self.paths.masks))?;
         if let Some(m) = &self.mesh {
@@ -232,7 +240,7 @@ impl fmt::Display for InfoReport {
             )?;
         }
         if let Some(c) = &self.colmap {
-            writeln!(f, "colmap")?;
+            writeln!(f, "cameras")?;
             let models: Vec<String> = c
                 .cameras_by_model
                 .iter()

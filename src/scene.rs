@@ -136,6 +136,21 @@ pub fn is_camera_file(path: &Path) -> bool {
         || openmvs::is_mvs_file(path)
 }
 
+/// What kind of camera model `path` is, as [`read_model`] reads it, for people.
+pub fn camera_format(path: &Path) -> &'static str {
+    if meshroom::is_sfm_file(path) {
+        "Meshroom / AliceVision cameras.sfm"
+    } else if bundler::is_bundle_file(path) {
+        "Bundler file"
+    } else if nvm::is_nvm_file(path) {
+        "VisualSFM NVM file"
+    } else if openmvs::is_mvs_file(path) {
+        "OpenMVS interface archive"
+    } else {
+        "COLMAP model"
+    }
+}
+
 /// The camera model at `path`: a COLMAP model directory or one of the camera files of
 /// [`is_camera_file`] (Bundler and VisualSFM store no image size, and OpenMVS may not: it
 /// comes from the photographs in `images`).
