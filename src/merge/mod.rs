@@ -23,6 +23,7 @@ use crate::photometric::Gains;
 use crate::photos::for_each_photo_with;
 use crate::progress::Progress;
 use crate::pyramid::{self, Plane};
+use crate::resample::FaceLists;
 use crate::resample::{
     check_photo_count, resample_with, PhotoSampler, ResampleOptions, Resampled, Sampler,
     TexelSource, NO_PHOTO,
@@ -344,41 +345,6 @@ pub fn merge(
 
 /// Faces per task when the per-face references and lists are built.
 const FACE_RUN: usize = 8192;
-
-/// A short list of photographs per face, in one buffer (`items[offsets[f]..offsets[f + 1]]`).
-#[derive(Debug, Default)]
-pub(super) struct FaceLists {
-    offsets: Vec<u32>,
-    items: Vec<u32>,
-}
-
-impl FaceLists {
-    /// Appends the next face's list, sorted.
-    fn push(&mut self, list: &mut [u32]) {
-        if self.offsets.is_empty() {
-            self.offsets.push(0);
-        }
-        list.sort_unstable();
-        self.items.extend_from_slice(list);
-        self.offsets.push(self.items.len() as u32);
-    }
-
-    /// Appends the faces of `other`, which follow this one's.
-    fn append(&mut self, other: FaceLists) {
-        if self.offsets.is_empty() {
-            self.offsets.push(0);
-        }
-        let base = *self.offsets.last().unwrap_or(&0);
-        self.offsets
-            .extend(other.offsets.iter().skip(1).map(|o| o + base));
-        self.items.extend(other.items);
-    }
-
-    /// Face `f`'s list (empty: no limit).
-    pub(super) fn get(&self, f: usize) -> &[u32] {
-        &self.items[self.offsets[f] as usize..self.offsets[f + 1] as usize]
-    }
-}
 
 #[allow(clippy::too_many_arguments)]
 fn multiband(

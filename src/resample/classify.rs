@@ -3,10 +3,44 @@
 
 use super::*;
 
+/// A short list of photographs per face, in one buffer (`items[offsets[f]..offsets[f + 1]]`).
+#[derive(Debug, Default)]
+pub(crate) struct FaceLists {
+    offsets: Vec<u32>,
+    items: Vec<u32>,
+}
+
+impl FaceLists {
+    /// Appends the next face's list, sorted.
+    pub(crate) fn push(&mut self, list: &mut [u32]) {
+        if self.offsets.is_empty() {
+            self.offsets.push(0);
+        }
+        list.sort_unstable();
+        self.items.extend_from_slice(list);
+        self.offsets.push(self.items.len() as u32);
+    }
+
+    /// Appends the faces of `other`, which follow this one's.
+    pub(crate) fn append(&mut self, other: FaceLists) {
+        if self.offsets.is_empty() {
+            self.offsets.push(0);
+        }
+        let base = *self.offsets.last().unwrap_or(&0);
+        self.offsets
+            .extend(other.offsets.iter().skip(1).map(|o| o + base));
+        self.items.extend(other.items);
+    }
+
+    /// Face `f`'s list (empty: no limit).
+    pub(crate) fn get(&self, f: usize) -> &[u32] {
+        &self.items[self.offsets[f] as usize..self.offsets[f + 1] as usize]
+    }
+}
+
 /// Sorted photographs common to the three vertices of every face, compressed rows.
 pub(crate) struct Common {
-    pub(super) offsets: Vec<u32>,
-    pub(super) photos: Vec<u32>,
+    lists: FaceLists,
     /// Per face: some photograph is valid at all three vertices (before any face check or
     /// limit), the paper's green test.
     pub(super) all_three: Vec<bool>,
@@ -62,24 +96,20 @@ impl Common {
                 (found.into_iter().map(|e| e.0).collect(), all_three)
             })
             .collect();
-        let mut offsets = Vec::with_capacity(lists.len() + 1);
-        offsets.push(0u32);
-        let mut photos = Vec::new();
+        let mut common = FaceLists::default();
         let mut all_three = Vec::with_capacity(lists.len());
-        for (l, a) in lists {
-            photos.extend(l);
-            offsets.push(photos.len() as u32);
+        for (mut l, a) in lists {
+            common.push(&mut l);
             all_three.push(a);
         }
         Common {
-            offsets,
-            photos,
+            lists: common,
             all_three,
         }
     }
 
     pub(crate) fn of(&self, f: usize) -> &[u32] {
-        &self.photos[self.offsets[f] as usize..self.offsets[f + 1] as usize]
+        self.lists.get(f)
     }
 }
 

@@ -33,6 +33,7 @@ use serde::Serialize;
 
 mod classify;
 mod sampler;
+pub(crate) use classify::FaceLists;
 use classify::*;
 pub use classify::{classify, fill_vertex_colors};
 #[cfg(test)]
