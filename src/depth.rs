@@ -23,11 +23,9 @@ pub struct DepthMap {
     pub z: Vec<f32>,
 }
 
-/// Rows rasterised together by one thread.
-const BAND: usize = 32;
-
-/// Faces binned into bands together by one thread.
-const FACE_BLOCK: usize = 1 << 16;
+/// At most this many z-buffers are rasterised at once (one per part of the faces), then merged
+/// by their minimum: bounded memory however many threads there are.
+const MAX_PARTS: usize = 8;
 
 impl DepthMap {
     /// Renders the depth of `mesh` seen by `view`, at most `max_side` pixels on the longer side.
@@ -47,10 +45,9 @@ impl DepthMap {
         let scale = (max_side as f64 / pw.max(ph) as f64).min(1.0);
         let w = ((pw as f64 * scale).round() as u32).max(1);
         let h = ((ph as f64 * scale).round() as u32).max(1);
-        // Projected corners in depth pixel coordinates (continuous, pixel centres at +0.5)
-        // and z, and the rows a triangle covers, if it lands in the image. Computed where
-        // needed rather than stored: a list of 1.2M triangles per photograph was 100 MB of
-        // fresh memory, and its page faults cost more than recomputing.
+        let w_us = w as usize;
+        // Projected corners in depth pixel coordinates (pixel centres at +0.5) and z, and
+        // the rows the triangle covers, if it lands in the image.
         let corners = |f: usize| -> Option<([[f64; 3]; 3], usize, usize)> {
             let fv = mesh.faces[f];
             let at = |k: usize| projected[fv[k].idx()].map(|[x, y, z]| [x * scale, y * scale, z]);
@@ -64,39 +61,45 @@ impl DepthMap {
             let r1 = ((yhi - 0.5).floor() as i64).min(h as i64 - 1);
             (r1 >= r0 as i64).then_some(([a, b, c], r0, r1 as usize))
         };
-        // Per block of faces, the faces each band of rows must scan, in face order.
-        let bands = (h as usize).div_ceil(BAND);
-        let by_block: Vec<Vec<Vec<u32>>> = (0..mesh.num_faces())
+        // Each part of the faces (contiguous, so nearby on a scan's surface) into its own
+        // z-buffer, then the buffers' minimum: the nearest depth per pixel is the same
+        // whichever part a face fell in, so the map does not depend on the thread count.
+        // One pass over the faces; binning them into row bands first cost more than the
+        // rasterising itself on meshes whose faces are smaller than a depth pixel.
+        let nf = mesh.num_faces();
+        let parts = rayon::current_num_threads()
+            .clamp(1, MAX_PARTS)
+            .min(nf.max(1));
+        let per = nf.div_ceil(parts).max(1);
+        let mut buffers: Vec<Vec<f32>> = (0..parts)
             .into_par_iter()
-            .step_by(FACE_BLOCK)
-            .map(|f0| {
-                let mut lists = vec![Vec::new(); bands];
-                for f in f0..(f0 + FACE_BLOCK).min(mesh.num_faces()) {
-                    if let Some((_, r0, r1)) = corners(f) {
-                        for list in &mut lists[r0 / BAND..=r1 / BAND] {
-                            list.push(f as u32);
-                        }
+            .map(|k| {
+                let mut z = vec![f32::INFINITY; w_us * h as usize];
+                for f in k * per..((k + 1) * per).min(nf) {
+                    if let Some((t, r0, r1)) = corners(f) {
+                        raster_depth(&t, r0, r1, w_us, |x, y, d| {
+                            let cell = &mut z[y * w_us + x];
+                            if d < *cell {
+                                *cell = d;
+                            }
+                        });
                     }
                 }
-                lists
+                z
             })
             .collect();
-        let mut z = vec![f32::INFINITY; (w * h) as usize];
-        z.par_chunks_mut(BAND * w as usize)
-            .enumerate()
-            .for_each(|(bi, rows)| {
-                let y0 = bi * BAND;
-                let y1 = y0 + rows.len() / w as usize;
-                for &f in by_block.iter().flat_map(|lists| &lists[bi]) {
-                    let (t, r0, r1) = corners(f as usize).expect("listed faces land");
-                    raster_depth(&t, r0.max(y0), r1.min(y1 - 1), w as usize, |x, y, d| {
-                        let cell = &mut rows[(y - y0) * w as usize + x];
+        let mut z = buffers.swap_remove(0);
+        if !buffers.is_empty() {
+            z.par_chunks_mut(w_us).enumerate().for_each(|(y, row)| {
+                for other in &buffers {
+                    for (cell, &d) in row.iter_mut().zip(&other[y * w_us..(y + 1) * w_us]) {
                         if d < *cell {
                             *cell = d;
                         }
-                    });
+                    }
                 }
             });
+        }
         DepthMap {
             width: w,
             height: h,
@@ -189,17 +192,25 @@ impl DepthMap {
 /// Every vertex of `mesh` projected into `view`: photo pixel coordinates (centres at +0.5) and
 /// camera-frame depth, `None` behind the camera or outside the model's domain.
 pub fn project_vertices(mesh: &Mesh, view: &PosedCamera) -> Vec<Option<[f64; 3]>> {
-    mesh.positions
-        .par_iter()
-        .map(|p| {
+    let mut out = Vec::new();
+    project_vertices_into(mesh, view, &mut out);
+    out
+}
+
+/// [`project_vertices`] into `out`, reusing its memory: at ten million vertices a fresh
+/// buffer per photograph is 300 MB of page faults.
+pub fn project_vertices_into(mesh: &Mesh, view: &PosedCamera, out: &mut Vec<Option<[f64; 3]>>) {
+    out.resize(mesh.positions.len(), None);
+    out.par_iter_mut()
+        .zip(mesh.positions.par_iter())
+        .for_each(|(o, p)| {
             let c = view.pose.transform(p);
-            if c.z <= 0.0 {
-                return None;
-            }
-            let px = view.camera.project(&c)?;
-            Some([px.x, px.y, c.z])
-        })
-        .collect()
+            *o = if c.z <= 0.0 {
+                None
+            } else {
+                view.camera.project(&c).map(|px| [px.x, px.y, c.z])
+            };
+        });
 }
 
 /// Calls `put(x, y, depth)` for every pixel centre of rows `r0..=r1` inside the projected
