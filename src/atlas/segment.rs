@@ -11,6 +11,7 @@
 
 use crate::mesh::{FaceId, Mesh};
 use nalgebra::Vector3;
+use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 use std::cmp::Reverse;
 use std::collections::{BinaryHeap, VecDeque};
@@ -70,24 +71,27 @@ impl Adjacency {
                 half.push((face[k].0, face[(k + 1) % 3].0, f as u32));
             }
         }
-        half.sort_unstable();
+        // The triples are distinct (one per face corner), so any sort gives the same order.
+        half.par_sort_unstable();
         let count = |a: u32, b: u32| -> (usize, Option<u32>) {
             let lo = half.partition_point(|h| (h.0, h.1) < (a, b));
             let hi = half.partition_point(|h| (h.0, h.1) <= (a, b));
             (hi - lo, (hi > lo).then(|| half[lo].2))
         };
-        let mut neighbours = vec![[None; 3]; mesh.num_faces()];
-        for (f, face) in mesh.faces.iter().enumerate() {
-            for k in 0..3 {
-                let (a, b) = (face[k].0, face[(k + 1) % 3].0);
-                // Manifold and consistently oriented: exactly this half-edge and one twin.
-                if count(a, b).0 == 1 {
-                    if let (1, Some(g)) = count(b, a) {
-                        neighbours[f][k] = Some(g);
+        let neighbours = mesh
+            .faces
+            .par_iter()
+            .map(|face| {
+                std::array::from_fn(|k| {
+                    let (a, b) = (face[k].0, face[(k + 1) % 3].0);
+                    // Manifold and consistently oriented: exactly this half-edge and one twin.
+                    match (count(a, b).0, count(b, a)) {
+                        (1, (1, Some(g))) => Some(g),
+                        _ => None,
                     }
-                }
-            }
-        }
+                })
+            })
+            .collect();
         Adjacency { neighbours }
     }
 }
@@ -100,6 +104,7 @@ pub fn segment(mesh: &Mesh, opts: &SegmentOptions) -> Charts {
 /// [`segment`] with the mesh's adjacency already built.
 pub fn segment_with(mesh: &Mesh, adj: &Adjacency, opts: &SegmentOptions) -> Charts {
     let normals: Vec<Vector3<f64>> = (0..mesh.num_faces())
+        .into_par_iter()
         .map(|f| mesh.face_normal_area(FaceId(f as u32)))
         .collect();
     // Scans are noisy: test the normal cone on face normals smoothed over a few rings of
@@ -107,6 +112,7 @@ pub fn segment_with(mesh: &Mesh, adj: &Adjacency, opts: &SegmentOptions) -> Char
     let mut smooth = normals.clone();
     for _ in 0..opts.smoothing {
         smooth = (0..mesh.num_faces())
+            .into_par_iter()
             .map(|f| {
                 smooth[f]
                     + adj.neighbours[f]
@@ -186,18 +192,26 @@ pub fn segment_with(mesh: &Mesh, adj: &Adjacency, opts: &SegmentOptions) -> Char
         }
         grown.push(faces);
     }
-    // Make every chart a disk.
-    let mut charts = Vec::with_capacity(grown.len());
-    let mut todo: Vec<Vec<FaceId>> = grown.into_iter().rev().collect();
-    while let Some(c) = todo.pop() {
-        if is_disk(mesh, adj, &c) {
-            charts.push(c);
-        } else {
-            let (a, b) = split(adj, &c);
-            todo.push(b);
-            todo.push(a);
-        }
-    }
+    // Make every chart a disk: each grown chart's splits are its own, so the charts are cut
+    // side by side and their pieces concatenated in the grown charts' order.
+    let charts: Vec<Vec<FaceId>> = grown
+        .into_par_iter()
+        .with_max_len(1)
+        .flat_map_iter(|c| {
+            let mut pieces = Vec::new();
+            let mut todo = vec![c];
+            while let Some(c) = todo.pop() {
+                if is_disk(mesh, adj, &c) {
+                    pieces.push(c);
+                } else {
+                    let (a, b) = split(adj, &c);
+                    todo.push(b);
+                    todo.push(a);
+                }
+            }
+            pieces
+        })
+        .collect();
     let charts = merge_small(mesh, adj, charts, opts.min_faces);
     let mut face_chart = vec![0u32; mesh.num_faces()];
     for (i, c) in charts.iter().enumerate() {
