@@ -38,6 +38,9 @@ impl FaceLists {
     }
 }
 
+/// Faces per task when the per-face lists are built.
+const FACE_RUN: usize = 8192;
+
 /// Sorted photographs common to the three vertices of every face, compressed rows.
 pub(crate) struct Common {
     lists: FaceLists,
@@ -58,49 +61,66 @@ impl Common {
         any_vertex: bool,
         max_views: usize,
     ) -> Self {
-        let lists: Vec<(Vec<u32>, bool)> = mesh
-            .faces
-            .par_iter()
-            .map(|f| {
-                let views = [f[0].idx(), f[1].idx(), f[2].idx()].map(|v| b.views(v));
+        // In runs of faces, each building its part of the compressed rows with one scratch
+        // list: a list per face collected from the scratch kept the scratch's allocation
+        // (Rust's in-place collect), up to 1.5 KB per face with 1,000 photographs.
+        let nf = mesh.num_faces();
+        let runs: Vec<std::ops::Range<usize>> = (0..nf)
+            .step_by(FACE_RUN)
+            .map(|s| s..(s + FACE_RUN).min(nf))
+            .collect();
+        let parts: Vec<(FaceLists, Vec<bool>)> = runs
+            .into_par_iter()
+            .map(|run| {
+                let mut lists = FaceLists::default();
+                let mut all = Vec::with_capacity(run.len());
                 // Per photograph: colour sum, vertices seeing it, weight sum.
                 let mut found: Vec<(u32, [f32; 3], u32, f32)> = Vec::new();
-                for vs in &views {
-                    for s in *vs {
-                        match found.iter_mut().find(|e| e.0 == s.photo) {
-                            Some(e) => {
-                                (0..3).for_each(|k| e.1[k] += s.color[k]);
-                                e.2 += 1;
-                                e.3 += s.weight;
+                let mut ids: Vec<u32> = Vec::new();
+                for f in &mesh.faces[run] {
+                    let views = [f[0].idx(), f[1].idx(), f[2].idx()].map(|v| b.views(v));
+                    found.clear();
+                    for vs in &views {
+                        for s in *vs {
+                            match found.iter_mut().find(|e| e.0 == s.photo) {
+                                Some(e) => {
+                                    (0..3).for_each(|k| e.1[k] += s.color[k]);
+                                    e.2 += 1;
+                                    e.3 += s.weight;
+                                }
+                                None => found.push((s.photo, s.color, 1, s.weight)),
                             }
-                            None => found.push((s.photo, s.color, 1, s.weight)),
                         }
                     }
-                }
-                let all_three = found.iter().any(|e| e.2 == 3);
-                found.retain(|e| any_vertex || e.2 == 3);
-                found.sort_unstable_by_key(|e| e.0);
-                if let Some(t) = face_check {
-                    let colors: Vec<[f32; 3]> =
-                        found.iter().map(|e| e.1.map(|c| c / e.2 as f32)).collect();
-                    let mut ok = consistent(&colors, t).into_iter();
-                    found.retain(|_| ok.next().unwrap_or(true));
-                }
-                if max_views > 0 && found.len() > max_views {
-                    // Heaviest first, ties by photograph index (deterministic), then back to
-                    // photograph order for the binary searches.
-                    found.sort_unstable_by(|a, b| b.3.total_cmp(&a.3).then(a.0.cmp(&b.0)));
-                    found.truncate(max_views);
+                    let all_three = found.iter().any(|e| e.2 == 3);
+                    found.retain(|e| any_vertex || e.2 == 3);
                     found.sort_unstable_by_key(|e| e.0);
+                    if let Some(t) = face_check {
+                        let colors: Vec<[f32; 3]> =
+                            found.iter().map(|e| e.1.map(|c| c / e.2 as f32)).collect();
+                        let mut ok = consistent(&colors, t).into_iter();
+                        found.retain(|_| ok.next().unwrap_or(true));
+                    }
+                    if max_views > 0 && found.len() > max_views {
+                        // Heaviest first, ties by photograph index (deterministic), then back to
+                        // photograph order for the binary searches.
+                        found.sort_unstable_by(|a, b| b.3.total_cmp(&a.3).then(a.0.cmp(&b.0)));
+                        found.truncate(max_views);
+                        found.sort_unstable_by_key(|e| e.0);
+                    }
+                    ids.clear();
+                    ids.extend(found.iter().map(|e| e.0));
+                    lists.push(&mut ids);
+                    all.push(all_three);
                 }
-                (found.into_iter().map(|e| e.0).collect(), all_three)
+                (lists, all)
             })
             .collect();
         let mut common = FaceLists::default();
-        let mut all_three = Vec::with_capacity(lists.len());
-        for (mut l, a) in lists {
-            common.push(&mut l);
-            all_three.push(a);
+        let mut all_three = Vec::with_capacity(nf);
+        for (l, a) in parts {
+            common.append(l);
+            all_three.extend(a);
         }
         Common {
             lists: common,
