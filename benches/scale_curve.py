@@ -6,6 +6,7 @@ count and photographed by each number of 12 MP cameras.
     pip install numpy pillow trimesh
     cargo build --release
     python3 benches/scale_curve.py <workdir> 70000:50 1000000:50 4000000:50 1000000:200
+    python3 benches/scale_curve.py --small <workdir> 1000000:50 1000000:1000
 
 Each FACES:PHOTOS point refines the corset to the fewest triangles of at least FACES
 (18,324 x 3^a x 4^b: 73k, 1.17M, 4.69M, 10.6M, 18.8M; see mesh_of) and renders PHOTOS photographs (800x600 renders
@@ -28,13 +29,17 @@ BIN = speed_scene.BIN
 DATA = speed_scene.DATA
 
 
-def photos_of(work, n):
-    """The 12 MP photographs, masks and COLMAP model of n cameras around the corset."""
+def photos_of(work, n, small_only=False):
+    """The 12 MP photographs, masks and COLMAP model of n cameras around the corset (with
+    small_only, the 800 x 600 renders they are scaled from)."""
     scene = os.path.join(work, f"photos{n}")
-    if not os.path.exists(os.path.join(scene, "sparse", "0", "images.txt")):
-        small = os.path.join(work, f"photos{n}_small")
+    small = os.path.join(work, f"photos{n}_small")
+    if not os.path.exists(os.path.join(small, "sparse", "0", "images.txt")):
         subprocess.run([BIN, "sample", "--from-mesh", os.path.join(DATA, "scans", "corset", "Corset.gltf"),
                         "--up", "y", "--photos", str(n), "-o", small], check=True, capture_output=True)
+    if small_only:
+        return small
+    if not os.path.exists(os.path.join(scene, "sparse", "0", "images.txt")):
         speed_scene.scale_scene(small, scene)
     return scene
 
@@ -88,10 +93,10 @@ def mesh_of(work, faces):
     return path
 
 
-def scene_of(work, faces, photos):
-    scene = os.path.join(work, f"scene{faces}_{photos}")
+def scene_of(work, faces, photos, small=False):
+    scene = os.path.join(work, f"scene{faces}_{photos}" + ("_small" if small else ""))
     os.makedirs(scene, exist_ok=True)
-    src = photos_of(work, photos)
+    src = photos_of(work, photos, small)
     for d in ("images", "masks", "sparse"):
         link = os.path.join(scene, d)
         if not os.path.exists(link):
@@ -103,14 +108,19 @@ def scene_of(work, faces, photos):
 
 
 def main():
-    work = sys.argv[1]
-    points = [tuple(int(x) for x in p.split(":")) for p in sys.argv[2:]]
+    args = sys.argv[1:]
+    # --small: the 800 x 600 renders instead of 12 MP (memory against the photograph count
+    # without hours of generating 12 MP photographs).
+    small = "--small" in args
+    args = [a for a in args if a != "--small"]
+    work = args[0]
+    points = [tuple(int(x) for x in p.split(":")) for p in args[1:]]
     print("| faces | photographs | pages | wall s | peak MB | estimate MB | atlas s | bind s | "
           "resample+merge s | restore s | synth s | largest stage peak MB (stage) |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for faces, photos in points:
-        scene = scene_of(work, faces, photos)
-        out = os.path.join(work, f"out{faces}_{photos}")
+        scene = scene_of(work, faces, photos, small)
+        out = os.path.join(work, f"out{faces}_{photos}" + ("_small" if small else ""))
         r = subprocess.run(["/usr/bin/time", "-v", BIN, "texture", scene, "-o", out, "-q"],
                            capture_output=True, text=True)
         if r.returncode != 0:

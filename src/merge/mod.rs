@@ -23,11 +23,11 @@ use crate::photometric::Gains;
 use crate::photos::for_each_photo_with;
 use crate::progress::Progress;
 use crate::pyramid::{self, Plane};
-use crate::resample::FaceLists;
 use crate::resample::{
     check_photo_count, resample_with, PhotoSampler, ResampleOptions, Resampled, Sampler,
     TexelSource, NO_PHOTO,
 };
+use crate::resample::{face_runs, FaceLists};
 use crate::scene::Photo;
 use half::f16;
 use nalgebra::Vector3;
@@ -343,9 +343,6 @@ pub fn merge(
     }
 }
 
-/// Faces per task when the per-face references and lists are built.
-const FACE_RUN: usize = 8192;
-
 #[allow(clippy::too_many_arguments)]
 fn multiband(
     prep: &Sampler,
@@ -375,11 +372,7 @@ fn multiband(
     // In runs of faces, flat: a list per face was three allocations per face per page (56
     // bytes and a malloc each, at 1.17M faces).
     let nf = mesh.num_faces();
-    let runs: Vec<std::ops::Range<usize>> = (0..nf)
-        .step_by(FACE_RUN)
-        .map(|s| s..(s + FACE_RUN).min(nf))
-        .collect();
-    let parts: Vec<(Vec<f32>, FaceLists)> = runs
+    let parts: Vec<(Vec<f32>, FaceLists)> = face_runs(nf)
         .into_par_iter()
         .map(|run| {
             let mut refs = Vec::with_capacity(run.len());

@@ -38,8 +38,18 @@ impl FaceLists {
     }
 }
 
-/// Faces per task when the per-face lists are built.
+/// Faces per task when per-face lists are built.
 const FACE_RUN: usize = 8192;
+
+/// `0..nf` cut into runs of [`FACE_RUN`] faces: per-face lists are built a run per task, each
+/// into its own [`FaceLists`] through one scratch list, then appended in order (a list per face
+/// costs an allocation per face, and collected from a scratch list keeps its capacity).
+pub(crate) fn face_runs(nf: usize) -> Vec<std::ops::Range<usize>> {
+    (0..nf)
+        .step_by(FACE_RUN)
+        .map(|s| s..(s + FACE_RUN).min(nf))
+        .collect()
+}
 
 /// Sorted photographs common to the three vertices of every face, compressed rows.
 pub(crate) struct Common {
@@ -61,15 +71,11 @@ impl Common {
         any_vertex: bool,
         max_views: usize,
     ) -> Self {
-        // In runs of faces, each building its part of the compressed rows with one scratch
-        // list: a list per face collected from the scratch kept the scratch's allocation
-        // (Rust's in-place collect), up to 1.5 KB per face with 1,000 photographs.
+        // In runs of faces: a list per face collected from the scratch list kept the
+        // scratch's allocation (Rust's in-place collect), up to 1.5 KB per face with 1,000
+        // photographs.
         let nf = mesh.num_faces();
-        let runs: Vec<std::ops::Range<usize>> = (0..nf)
-            .step_by(FACE_RUN)
-            .map(|s| s..(s + FACE_RUN).min(nf))
-            .collect();
-        let parts: Vec<(FaceLists, Vec<bool>)> = runs
+        let parts: Vec<(FaceLists, Vec<bool>)> = face_runs(nf)
             .into_par_iter()
             .map(|run| {
                 let mut lists = FaceLists::default();

@@ -33,9 +33,9 @@ use serde::Serialize;
 
 mod classify;
 mod sampler;
-pub(crate) use classify::FaceLists;
 use classify::*;
 pub use classify::{classify, fill_vertex_colors};
+pub(crate) use classify::{face_runs, FaceLists};
 #[cfg(test)]
 use sampler::*;
 pub use sampler::{PhotoSampler, PhotoSetup, Sampler};
