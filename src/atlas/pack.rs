@@ -5,7 +5,10 @@
 //! new chart's footprint dilated by the gutter. Small charts thus fill holes and bays of large
 //! ones. The density is the largest that fits one page (bisection), or fixed, with as many
 //! pages as needed. A page keeps its free texels as intervals per row, so a row is tested for
-//! every x at once; per-band summaries skip rows where a chart cannot fit.
+//! every x at once; per-band summaries skip rows where a chart cannot fit. A square map (per
+//! texel, the largest free square starting there) lets a search skip rows, and list the few
+//! x, where the chart's own inscribed squares do not fit: on a filled page most of the rows a
+//! search used to visit are holes too small for the chart.
 
 use super::param::ChartMap;
 use crate::mesh::{Mesh, UvMap};
@@ -153,6 +156,11 @@ struct Mask {
     offset: Vector2<f64>,
     /// Quarter turns applied to the chart.
     rot: u8,
+    /// Squares inside the dilated spans (sides capped at [`SQUARE_CAP`]) as (top row, left
+    /// column, side): the largest first, then the largest whose top row lies in each other
+    /// third of the rows. Wherever the mask fits, a free square of each side starts there on
+    /// the page.
+    squares: Vec<(usize, usize, usize)>,
 }
 
 fn rotate(p: Vector2<f64>, rot: u8) -> Vector2<f64> {
@@ -262,7 +270,7 @@ fn mask(foot: &[bool], w: usize, h: usize, offset: Vector2<f64>, rot: u8, gutter
         let (a, b) = (a.saturating_sub(gutter as u32), b + gutter as u32);
         *s = Some(s.map_or((a, b), |(l, r)| (l.min(a), r.max(b))));
     }
-    let spans = (0..rh)
+    let spans: Vec<Option<(u32, u32)>> = (0..rh)
         .map(|y| {
             let lo = y.saturating_sub(gutter);
             let hi = (y + gutter).min(rh - 1);
@@ -274,6 +282,7 @@ fn mask(foot: &[bool], w: usize, h: usize, offset: Vector2<f64>, rot: u8, gutter
                 })
         })
         .collect();
+    let squares = inscribed_squares(&spans);
     Mask {
         w: rw,
         h: rh,
@@ -281,7 +290,55 @@ fn mask(foot: &[bool], w: usize, h: usize, offset: Vector2<f64>, rot: u8, gutter
         runs,
         offset: off,
         rot,
+        squares,
     }
+}
+
+/// The largest square in the row spans, then the largest whose top row lies in each other
+/// third of the rows (sides at most [`SQUARE_CAP`]), as (top row, left column, side).
+fn inscribed_squares(spans: &[Option<(u32, u32)>]) -> Vec<(usize, usize, usize)> {
+    let h = spans.len();
+    let thirds = [0, h / 3, 2 * h / 3, h];
+    let mut out: Vec<(usize, usize, usize)> = (0..3)
+        .filter(|&t| thirds[t] < thirds[t + 1])
+        .map(|t| inscribed_square(spans, thirds[t], thirds[t + 1]))
+        .filter(|q| q.2 > 0)
+        .collect();
+    // The largest first (the earliest on ties): it lists the candidates, the others filter.
+    let first = (0..out.len())
+        .max_by_key(|&i| (out[i].2, std::cmp::Reverse(i)))
+        .unwrap_or(0);
+    if !out.is_empty() {
+        out.swap(0, first);
+    }
+    out
+}
+
+/// The largest square (side at most [`SQUARE_CAP`]) inside the row spans whose top row lies in
+/// `from..to`: its top row, left column and side (0 when there is none).
+fn inscribed_square(spans: &[Option<(u32, u32)>], from: usize, to: usize) -> (usize, usize, usize) {
+    let mut best = (from, 0, 0);
+    for r0 in from..to {
+        if spans.len() - r0 <= best.2 || best.2 == SQUARE_CAP {
+            break;
+        }
+        // Rows r0..r0 + s hold a square of side s iff their common run has s texels.
+        let (mut lo, mut hi) = (0u32, u32::MAX);
+        for s in 1..=SQUARE_CAP.min(spans.len() - r0) {
+            let Some((a, b)) = spans[r0 + s - 1] else {
+                break;
+            };
+            lo = lo.max(a);
+            hi = hi.min(b);
+            if hi < lo || ((hi - lo + 1) as usize) < s {
+                break;
+            }
+            if s > best.2 {
+                best = (r0, lo as usize, s);
+            }
+        }
+    }
+    best
 }
 
 /// One atlas page: per row, its free texels as sorted, disjoint half-open intervals, and the
@@ -297,7 +354,59 @@ struct Page {
     /// For each band height `BANDS[l]`, per aligned band of that many rows, the longest run
     /// free in all of them.
     band_free: Vec<Vec<u32>>,
+    /// Texels per side of a block of the square map (1 up to 8192 texels, so that the map
+    /// stays within 64 MB).
+    block: usize,
+    /// Blocks per side: the blocks wholly inside the page.
+    blocks: usize,
+    /// Per block, row-major, the side (in blocks, at most [`SQUARE_CAP`]) of the largest
+    /// square of wholly free blocks whose top-left block it is.
+    square: Vec<u8>,
+    /// Per block row, per group of [`SQUARE_GROUP`] blocks, the largest of `square`.
+    square_group: Vec<u8>,
+    /// Per block row, the largest of `square`: a mask whose inscribed square starts in this
+    /// row needs it to be large enough. Most rows of a filled page fail this one look.
+    square_row: Vec<u8>,
+    /// For each side k up to [`SQUARE_CAP`], the first block row whose `square_row` is at
+    /// least k (`blocks` if none). Squares only shrink as charts are placed, so this only
+    /// moves down, and a find starts there instead of at the top of a filled page.
+    first_row: Vec<usize>,
 }
+
+/// Largest square side the square map records (blocks), and the largest looked for in a mask:
+/// a placement changes the map up to this far above and left of the chart.
+const SQUARE_CAP: usize = 64;
+
+/// Candidates are listed from the square map only where at most this many groups of a row
+/// hold a large enough square; elsewhere (an open page) the intervals are cheaper.
+const SELECTIVE_GROUPS: usize = 4;
+
+/// One bit per entry of `row[start..start + 64]` (entries outside the row: 0) that is at least
+/// `k` (at most [`SQUARE_CAP`]), bit i for entry start + i. Eight entries at a time: adding
+/// 128 - k to an entry (at most 64) sets its top bit iff it is at least k, and never carries
+/// into the next byte.
+fn at_least(row: &[u8], start: i64, k: usize) -> u64 {
+    let mut buf = [0u8; 64];
+    let (from, to) = (start.max(0), (start + 64).min(row.len() as i64));
+    if from >= to {
+        return 0;
+    }
+    let (from, to) = (from as usize, to as usize);
+    let off = (from as i64 - start) as usize;
+    buf[off..off + (to - from)].copy_from_slice(&row[from..to]);
+    let add = u64::from_le_bytes([(128 - k) as u8; 8]);
+    let mut bits = 0u64;
+    for (i, word) in buf.chunks_exact(8).enumerate() {
+        let w = u64::from_le_bytes(word.try_into().expect("eight bytes"));
+        let top = ((w + add) & 0x8080_8080_8080_8080) >> 7;
+        bits |= (top.wrapping_mul(0x0102_0408_1020_4080) >> 56) << (8 * i);
+    }
+    bits
+}
+
+/// Blocks per group in [`Page::square_group`] (at most 64: a group's candidates are one
+/// machine word). The tests use smaller groups, so that their small pages have several.
+const SQUARE_GROUP: usize = if cfg!(test) { 8 } else { 64 };
 
 /// Rows per band in [`Page::band_free`]. Any window of `2 * B - 1` rows holds a whole band of
 /// `B`, so a span common to that many rows of a mask must lie in a run free across a band.
@@ -368,11 +477,149 @@ fn intersect(cur: &[(u32, u32)], row: &[(u32, u32)], a: u32, need: u32, out: &mu
 
 impl Page {
     fn new(size: usize) -> Page {
+        Page::with_block(size, size.div_ceil(8192))
+    }
+
+    fn with_block(size: usize, block: usize) -> Page {
+        let blocks = size / block;
+        // An empty page: a block's square reaches the right or bottom edge, or the cap. The
+        // largest in a group is its first block's, in a row its first group's.
+        let mut square = vec![0u8; blocks * blocks];
+        for (by, row) in square.chunks_mut(blocks.max(1)).enumerate() {
+            let cap = (blocks - by).min(SQUARE_CAP);
+            row[..blocks - cap].fill(cap as u8);
+            for (v, side) in row[blocks - cap..].iter_mut().zip((1..=cap).rev()) {
+                *v = side as u8;
+            }
+        }
+        let groups = blocks.div_ceil(SQUARE_GROUP);
+        let square_group: Vec<u8> = (0..blocks * groups)
+            .map(|i| square[(i / groups) * blocks + (i % groups) * SQUARE_GROUP])
+            .collect();
+        let square_row: Vec<u8> = (0..blocks).map(|by| square[by * blocks]).collect();
         Page {
             size,
             free: vec![vec![(0, size as u32)]; size],
             max_free: vec![size as u32; size],
             band_free: BANDS.iter().map(|&b| vec![size as u32; size / b]).collect(),
+            block,
+            blocks,
+            square,
+            square_group,
+            first_row: (0..=SQUARE_CAP)
+                .map(|k| {
+                    square_row
+                        .iter()
+                        .position(|&v| v as usize >= k)
+                        .unwrap_or(blocks)
+                })
+                .collect(),
+            square_row,
+        }
+    }
+
+    /// Brings the square map up to date after the footprint of `m` was placed at `(x, y)`:
+    /// the blocks it touches are no longer free. A block's square depends only on its right,
+    /// lower and lower-right neighbours, so the map is recomputed from the bottom row of the
+    /// chart upwards, in each row only from the right end of what changed in it or below it
+    /// and leftwards while values keep changing; it stops at the first row above the chart
+    /// where nothing changed (at most [`SQUARE_CAP`] rows up).
+    fn update_squares(&mut self, m: &Mask, x: usize, y: usize) {
+        let (b, nb) = (self.block, self.blocks);
+        if nb == 0 || y / b >= nb || x / b >= nb {
+            return;
+        }
+        let (by0, by1) = (y / b, ((y + m.h - 1) / b).min(nb - 1));
+        // Per block row of the chart, the columns it made occupied.
+        let mut occupied: Vec<Option<(usize, usize)>> = vec![None; by1 - by0 + 1];
+        for &(r, a, e) in &m.runs {
+            let by = (y + r as usize) / b;
+            if by >= nb || (x + a as usize) / b >= nb {
+                continue;
+            }
+            let (b0, b1) = ((x + a as usize) / b, ((x + e as usize) / b).min(nb - 1));
+            self.square[by * nb + b0..=by * nb + b1].fill(0);
+            let o = &mut occupied[by - by0];
+            *o = Some(o.map_or((b0, b1), |(l, h)| (l.min(b0), h.max(b1))));
+        }
+        let groups = nb.div_ceil(SQUARE_GROUP);
+        // Columns that changed in the row below (inclusive).
+        let mut below: Option<(usize, usize)> = None;
+        for by in (0..=by1).rev() {
+            let occ = if by >= by0 { occupied[by - by0] } else { None };
+            // Candidates: the occupied columns, and those whose lower or lower-right
+            // neighbour changed.
+            let cand = match (occ, below) {
+                (Some(o), Some(d)) => Some((o.0.min(d.0.saturating_sub(1)), o.1.max(d.1))),
+                (Some(o), None) => Some(o),
+                (None, Some(d)) => Some((d.0.saturating_sub(1), d.1)),
+                (None, None) => None,
+            };
+            let Some((lo, hi)) = cand else {
+                if by < by0 {
+                    break;
+                }
+                below = None;
+                continue;
+            };
+            let row = by * nb;
+            let mut changed = occ;
+            let mut prev_changed = false;
+            let mut bx = hi as isize;
+            while bx >= 0 {
+                let c = bx as usize;
+                if c < lo && !prev_changed {
+                    break;
+                }
+                let i = row + c;
+                let old = self.square[i];
+                prev_changed = occ.is_some_and(|(l, h)| (l..=h).contains(&c));
+                if old != 0 {
+                    let right = if c + 1 < nb { self.square[i + 1] } else { 0 };
+                    let (down, diag) = if by + 1 < nb {
+                        let diag = if c + 1 < nb {
+                            self.square[i + nb + 1]
+                        } else {
+                            0
+                        };
+                        (self.square[i + nb], diag)
+                    } else {
+                        (0, 0)
+                    };
+                    let new = (1 + right.min(down).min(diag)).min(SQUARE_CAP as u8);
+                    if new != old {
+                        self.square[i] = new;
+                        prev_changed = true;
+                        changed = Some(changed.map_or((c, c), |(l, h)| (l.min(c), h.max(c))));
+                    }
+                }
+                bx -= 1;
+            }
+            below = changed;
+            let Some((l, h)) = changed else {
+                if by < by0 {
+                    break;
+                }
+                continue;
+            };
+            for g in l / SQUARE_GROUP..=h / SQUARE_GROUP {
+                self.square_group[by * groups + g] = self.square
+                    [row + g * SQUARE_GROUP..row + ((g + 1) * SQUARE_GROUP).min(nb)]
+                    .iter()
+                    .copied()
+                    .max()
+                    .unwrap_or(0);
+            }
+            self.square_row[by] = self.square_group[by * groups..(by + 1) * groups]
+                .iter()
+                .copied()
+                .max()
+                .unwrap_or(0);
+        }
+        for (k, f) in self.first_row.iter_mut().enumerate() {
+            while *f < nb && (self.square_row[*f] as usize) < k {
+                *f += 1;
+            }
         }
     }
 
@@ -438,21 +685,117 @@ impl Page {
                     .filter(|c| c.2 > 0)
             })
             .collect();
+        // The mask's inscribed square, in whole blocks of the square map: a texel square of side
+        // q contains an aligned square of (q + 1) / b - 1 blocks, starting in the block row
+        // that holds or follows its top row.
+        let b = self.block;
+        // Per square: top row, left column, and side in whole blocks.
+        let squares: Vec<(usize, usize, usize)> = m
+            .squares
+            .iter()
+            .map(|&(r, c, s)| (r, c, ((s + 1) / b).saturating_sub(1)))
+            .filter(|q| q.2 > 0)
+            .collect();
+        let (sq_row, sq_col, need_blocks) = squares.first().copied().unwrap_or((0, 0, 0));
         let full = [(0u32, (n - m.w) as u32)];
-        let (mut cur, mut next) = (Vec::new(), Vec::new());
-        for y in 0..=n - m.h {
+        let mut cur: Vec<(u32, u32)> = Vec::new();
+        let mut next: Vec<(u32, u32)> = Vec::new();
+        let groups = self.blocks.div_ceil(SQUARE_GROUP);
+        // Rows above the first block row holding a large enough square cannot take the mask:
+        // ceil((y + r) / b) >= F needs y >= (F - 1) b + 1 - r.
+        let start = squares
+            .iter()
+            .map(|&(r, _, k)| match self.first_row[k] {
+                0 => 0,
+                f => ((f - 1) * b + 1).saturating_sub(r),
+            })
+            .max()
+            .unwrap_or(0);
+        for y in start..=n - m.h {
             if y + m.h > bottom.load(Ordering::Relaxed) {
                 return None;
+            }
+            if squares
+                .iter()
+                .any(|&(r, _, k)| (self.square_row[(y + r).div_ceil(b)] as usize) < k)
+            {
+                continue;
             }
             if cores
                 .iter()
                 .any(|&(l, r0, len)| self.band_free[l][(y + r0).div_ceil(BANDS[l])] < len)
-                || rows.iter().any(|&(r, _, need)| self.max_free[y + r] < need)
             {
                 continue;
             }
             cur.clear();
-            cur.extend_from_slice(&full);
+            // The block row of the first square (only read when there is one: it is inside
+            // the page then).
+            let by = (y + sq_row).div_ceil(b);
+            let row_groups: &[u8] = if need_blocks > 0 {
+                &self.square_group[by * groups..(by + 1) * groups]
+            } else {
+                &[]
+            };
+            let selective = need_blocks > 0 && {
+                let k = need_blocks as u8;
+                row_groups.iter().filter(|&&gm| gm >= k).count() <= SELECTIVE_GROUPS
+            };
+            if selective {
+                // The candidates are the x whose inscribed square's top-left texel lies in a
+                // block that starts a free square large enough: block bx holds that texel's
+                // ceiling, so the texel lies in ((bx - 1) b, bx b]. With one texel per block,
+                // the other squares filter them in the same pass (x's block for a square at
+                // column c is x + c).
+                let row = &self.square[by * self.blocks..(by + 1) * self.blocks];
+                let others: &[(usize, usize, usize)] = if b == 1 { &squares[1..] } else { &[] };
+                let last = (n - m.w) as i64;
+                for (g, &gm) in row_groups.iter().enumerate() {
+                    if (gm as usize) < need_blocks {
+                        continue;
+                    }
+                    let base = g * SQUARE_GROUP;
+                    let mut bits = at_least(row, base as i64, need_blocks);
+                    if SQUARE_GROUP < 64 {
+                        bits &= (1u64 << SQUARE_GROUP) - 1;
+                    }
+                    for &(r, c, k) in others {
+                        if bits == 0 {
+                            break;
+                        }
+                        let other = &self.square[(y + r) * self.blocks..][..self.blocks];
+                        bits &= at_least(other, base as i64 + c as i64 - sq_col as i64, k);
+                    }
+                    while bits != 0 {
+                        let start = bits.trailing_zeros() as usize;
+                        let len = (!(bits >> start)).trailing_zeros() as usize;
+                        bits &= if start + len >= 64 {
+                            0
+                        } else {
+                            !0u64 << (start + len)
+                        };
+                        // Blocks base + start .. base + start + len.
+                        let lo = ((base + start) as i64 - 1) * b as i64 + 1 - sq_col as i64;
+                        let hi = ((base + start + len - 1) * b) as i64 - sq_col as i64;
+                        let (lo, hi) = (lo.max(0), hi.min(last));
+                        if lo > hi {
+                            continue;
+                        }
+                        let (lo, hi) = (lo as u32, hi as u32);
+                        match cur.last_mut() {
+                            Some((_, h)) if *h + 1 >= lo => *h = (*h).max(hi),
+                            _ => cur.push((lo, hi)),
+                        }
+                    }
+                }
+                if cur.is_empty() {
+                    continue;
+                }
+            } else {
+                if rows.iter().any(|&(r, _, need)| self.max_free[y + r] < need) {
+                    continue;
+                }
+                cur.extend_from_slice(&full);
+            }
             for k in 0..order.len() {
                 let (r, a, need) = rows[order[k]];
                 intersect(&cur, &self.free[y + r], a, need, &mut next);
@@ -473,6 +816,7 @@ impl Page {
 
     /// Marks the footprint of `m` at `(x, y)` occupied.
     fn place(&mut self, m: &Mask, x: usize, y: usize) {
+        self.update_squares(m, x, y);
         for &(r, a, b) in &m.runs {
             let row = &mut self.free[y + r as usize];
             let (a, b) = (x as u32 + a, x as u32 + b + 1);
@@ -993,15 +1337,90 @@ mod tests {
         (foot, w, h)
     }
 
+    /// The page's square map against one computed from scratch on the texel grid: a block is
+    /// free when all its texels are, and each block holds the side of the largest square of
+    /// free blocks below and right of it (capped).
+    fn assert_squares(page: &Page, occ: &[bool], n: usize) {
+        let (b, nb) = (page.block, page.blocks);
+        let free = |bx: usize, by: usize| {
+            (by * b..(by + 1) * b).all(|y| (bx * b..(bx + 1) * b).all(|x| !occ[y * n + x]))
+        };
+        for by in 0..nb {
+            for bx in 0..nb {
+                let mut side = 0;
+                while side < SQUARE_CAP
+                    && bx + side < nb
+                    && by + side < nb
+                    && (0..=side).all(|k| free(bx + side, by + k) && free(bx + k, by + side))
+                {
+                    side += 1;
+                }
+                assert_eq!(
+                    page.square[by * nb + bx] as usize,
+                    side,
+                    "block ({bx}, {by})"
+                );
+            }
+            let row = &page.square[by * nb..(by + 1) * nb];
+            assert_eq!(page.square_row[by], row.iter().copied().max().unwrap_or(0));
+            let groups = nb.div_ceil(SQUARE_GROUP);
+            for (g, part) in row.chunks(SQUARE_GROUP).enumerate() {
+                let want = part.iter().copied().max().unwrap_or(0);
+                assert_eq!(
+                    page.square_group[by * groups + g],
+                    want,
+                    "group {g} of row {by}"
+                );
+            }
+        }
+        for (k, &f) in page.first_row.iter().enumerate() {
+            let want = (0..nb).find(|&by| page.square_row[by] as usize >= k);
+            assert_eq!(f, want.unwrap_or(nb), "first row with a square of {k}");
+        }
+    }
+
+    #[test]
+    fn inscribed_square_is_the_largest_square_inside_the_spans() {
+        let mut rng = SplitMix64::new(11);
+        for _ in 0..300 {
+            let (foot, w, h) = blob(&mut rng, 1);
+            let m = mask(&foot, w, h, Vector2::zeros(), (rng.next_u64() % 4) as u8, 1);
+            let inside = |r: usize, c: usize, s: usize| {
+                r + s <= m.h
+                    && (r..r + s).all(|y| {
+                        m.spans[y].is_some_and(|(a, b)| a as usize <= c && c + s <= b as usize + 1)
+                    })
+            };
+            for &(r, c, s) in &m.squares {
+                assert!(
+                    s >= 1 && inside(r, c, s),
+                    "{:?} in {:?}",
+                    m.squares,
+                    m.spans
+                );
+            }
+            let (_, _, s) = m.squares[0];
+            let larger = (0..m.h).any(|r| (0..m.w).any(|c| inside(r, c, s + 1)));
+            assert!(!larger, "a square of {} fits {:?}", s + 1, m.spans);
+        }
+    }
+
     #[test]
     fn interval_page_finds_the_same_first_fit_as_a_texel_grid() {
         // Every find is checked against the texel-by-texel search on a grid that the same
         // placements filled: the intervals, the move-to-front row order and the band
         // summaries may only make the search faster, never change where a chart goes.
         let mut rng = SplitMix64::new(7);
-        for (n, gutter) in [(48usize, 1usize), (64, 2), (80, 0)] {
-            let mut page = Page::new(n);
+        for (n, gutter, block) in [
+            (48usize, 1usize, 1usize),
+            (64, 2, 1),
+            (80, 0, 1),
+            (66, 1, 2),
+            (81, 2, 3),
+        ] {
+            let mut page = Page::with_block(n, block);
             let mut occ = vec![false; n * n];
+            assert_squares(&page, &occ, n);
             let (mut placed, mut full) = (0, 0);
             for _ in 0..400 {
                 let (foot, w, h) = blob(&mut rng, gutter);
@@ -1024,6 +1443,7 @@ mod tests {
                 }
                 page.place(&m, x, y);
                 placed += 1;
+                assert_squares(&page, &occ, n);
             }
             // Both outcomes were exercised: the page filled up.
             assert!(placed > 10 && full > 10, "placed {placed}, refused {full}");
