@@ -12,7 +12,7 @@
 
 use scantex::atlas::pack::{coverage, pack, PackOptions};
 use scantex::atlas::param::ChartMap;
-use scantex::mesh::{FaceId, UnionFind};
+use scantex::mesh::FaceId;
 use std::collections::HashMap;
 use std::hash::{Hash, Hasher};
 use std::path::Path;
@@ -44,32 +44,25 @@ fn main() {
         eprintln!("{path} has no texture coordinates");
         std::process::exit(1)
     };
-    let mut sets = UnionFind::new(uv.coords.len());
-    for t in &uv.faces {
-        sets.union(t[0] as usize, t[1] as usize);
-        sets.union(t[0] as usize, t[2] as usize);
-    }
-    let mut chart_of: HashMap<usize, usize> = HashMap::new();
-    let mut maps: Vec<ChartMap> = Vec::new();
-    let mut local: Vec<HashMap<u32, u32>> = Vec::new();
+    let island = scantex::atlas::uv_islands(&uv);
+    let charts = island.iter().map(|&c| c as usize + 1).max().unwrap_or(0);
+    let mut maps: Vec<ChartMap> = (0..charts)
+        .map(|_| ChartMap {
+            vertices: Vec::new(),
+            uv: Vec::new(),
+            faces: Vec::new(),
+            face_ids: Vec::new(),
+        })
+        .collect();
+    let mut local: Vec<HashMap<u32, u32>> = vec![HashMap::new(); charts];
     for (f, t) in uv.faces.iter().enumerate() {
-        let r = sets.find(t[0] as usize);
-        let c = *chart_of.entry(r).or_insert_with(|| {
-            maps.push(ChartMap {
-                vertices: Vec::new(),
-                uv: Vec::new(),
-                faces: Vec::new(),
-                face_ids: Vec::new(),
-            });
-            local.push(HashMap::new());
-            maps.len() - 1
-        });
+        let c = island[f] as usize;
         let (map, loc) = (&mut maps[c], &mut local[c]);
         let mut tri = [0u32; 3];
         for k in 0..3 {
             let n = map.uv.len() as u32;
             tri[k] = *loc.entry(t[k]).or_insert_with(|| {
-                // Atlas units, with u's page part dropped: the density search rescales.
+                // Atlas units: the density search rescales.
                 let p = uv.coords[t[k] as usize].cast::<f64>();
                 map.uv.push(p);
                 map.vertices.push(mesh.faces[f][k]);

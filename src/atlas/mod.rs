@@ -634,7 +634,7 @@ pub fn measure(mesh: &Mesh, size: u32) -> crate::Result<AtlasReport> {
 
 /// Each face's UV island (faces joined through shared texture-coordinate indices), numbered in
 /// the order of their first face.
-fn uv_islands(uv: &crate::mesh::UvMap) -> Vec<u32> {
+pub fn uv_islands(uv: &crate::mesh::UvMap) -> Vec<u32> {
     let mut sets = UnionFind::new(uv.coords.len());
     for t in &uv.faces {
         sets.union(t[0] as usize, t[1] as usize);

@@ -685,11 +685,10 @@ impl Page {
                     .filter(|c| c.2 > 0)
             })
             .collect();
-        // The mask's inscribed square, in whole blocks of the square map: a texel square of side
-        // q contains an aligned square of (q + 1) / b - 1 blocks, starting in the block row
-        // that holds or follows its top row.
+        // The mask's inscribed squares as top row, left column and side in whole blocks of the
+        // square map: a texel square of side q contains an aligned square of (q + 1) / b - 1
+        // blocks, starting in the block row that holds or follows its top row.
         let b = self.block;
-        // Per square: top row, left column, and side in whole blocks.
         let squares: Vec<(usize, usize, usize)> = m
             .squares
             .iter()
