@@ -174,7 +174,8 @@ pub fn level_seams(
             edges.push((x.min(y), x.max(y)));
         }
     }
-    edges.sort_unstable();
+    // Sorting pairs of integers: the parallel sort gives the same order.
+    edges.par_sort_unstable();
     edges.dedup();
     let nu = count as usize;
     for smp in &mut samples {
@@ -202,7 +203,7 @@ pub fn level_seams(
     // Per unknown, its neighbours and the border samples it enters (as CSR lists), so that
     // the operator is applied by gathering, in parallel.
     let csr = |pairs: &mut Vec<(u32, u32)>| -> (Vec<usize>, Vec<u32>) {
-        pairs.sort_unstable();
+        pairs.par_sort_unstable();
         let mut start = vec![0usize; nu + 1];
         for &(u, _) in pairs.iter() {
             start[u as usize + 1] += 1;

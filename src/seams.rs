@@ -74,15 +74,37 @@ pub fn seam_visibility(
     let (w, h) = atlas.dimensions();
     let (w, h) = (w as usize, h as usize);
     let chart = |s: u8| (1..=4).contains(&s);
-    // Distance-2 interior: texels whose 5x5 neighbourhood is all chart.
-    let interior = |x: usize, y: usize| -> bool {
-        if x < 2 || y < 2 || x + 2 >= w || y + 2 >= h {
-            return false;
-        }
-        (y - 2..=y + 2).all(|yy| (x - 2..=x + 2).all(|xx| chart(source[yy * w + xx])))
-    };
     let photos = TexelSource::Photos as u8;
-    let ok = |i: usize| source[i] == photos && best[i] != NO_PHOTO && interior(i % w, i / w);
+    // Which texels enter the sums (coloured from photographs, with a best photograph, and
+    // distance-2 interior: the 5 x 5 neighbourhood all chart), one bit per texel, a row at a
+    // time: testing the neighbourhood at every look took most of this stage at 8192.
+    let wpr = w.div_ceil(64).max(1);
+    let mut ok_bits = vec![0u64; wpr * h];
+    if w >= 5 && h >= 5 {
+        ok_bits
+            .par_chunks_mut(wpr)
+            .enumerate()
+            .filter(|(y, _)| (2..h - 2).contains(y))
+            .for_each(|(y, bits)| {
+                // Columns whose five rows y-2..=y+2 are all chart, then runs of five of them.
+                let mut run = 0usize;
+                for x in 0..w {
+                    let col = (y - 2..=y + 2).all(|yy| chart(source[yy * w + x]));
+                    run = if col { run + 1 } else { 0 };
+                    // Column x closes a run of five: the texel at its centre, x - 2, is interior.
+                    if run >= 5 {
+                        let (c, i) = (x - 2, y * w + x - 2);
+                        if source[i] == photos && best[i] != NO_PHOTO {
+                            bits[c / 64] |= 1 << (c % 64);
+                        }
+                    }
+                }
+            });
+    }
+    let ok = |i: usize| {
+        let (x, y) = (i % w, i / w);
+        ok_bits[y * wpr + x / 64] >> (x % 64) & 1 == 1
+    };
     let y_at = |i: usize| luma(atlas.get_pixel((i % w) as u32, (i / w) as u32).0);
     // Per row band: sums for the global ratio (across, within) and the local one (across
     // with both flanking pairs within, and those flanks).

@@ -605,11 +605,11 @@ fn grid_distance(w: usize, h: usize, domain: &[bool], from: &[bool], limit: Opti
         .into_par_iter()
         .filter(|&i| start(i) && neighbours4(i, w, h).any(|j| domain[j] && !start(j)))
         .collect();
-    for (i, v) in d.iter_mut().enumerate() {
+    d.par_iter_mut().enumerate().for_each(|(i, v)| {
         if start(i) {
             *v = 0;
         }
-    }
+    });
     let mut step = 0u32;
     let mut next = Vec::new();
     while !front.is_empty() && limit.is_none_or(|l| step < u32::from(l)) {

@@ -7,6 +7,7 @@ use crate::atlas::Atlas;
 use crate::mesh::topology::NO_FACE;
 use crate::mesh::{FaceId, Mesh};
 use crate::resample::TexelSource;
+use rayon::prelude::*;
 use serde::Serialize;
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -46,41 +47,55 @@ pub fn feature_scale(color: &image::Rgb32FImage, source: &[u8]) -> f64 {
     const HALF: usize = 8;
     const MAX_LAG: usize = 16;
     let luma = |x: usize, y: usize| crate::planar::luma(&color.get_pixel(x as u32, y as u32).0);
-    let mut num = [0f64; MAX_LAG + 1];
-    let (mut e0, mut e1) = ([0f64; MAX_LAG + 1], [0f64; MAX_LAG + 1]);
+    // Rows in parallel, each row's sums added in row order (deterministic).
+    type Sums = [[f64; MAX_LAG + 1]; 3];
     let stride = (n / 512).max(1);
-    for y in (0..n).step_by(stride) {
-        let row = &source[y * n..(y + 1) * n];
-        // Runs of seen texels long enough to hold the window and the lags.
-        let mut x = 0;
-        while x < n {
-            if row[x] != TexelSource::Photos as u8 {
-                x += 1;
-                continue;
-            }
-            let start = x;
-            while x < n && row[x] == TexelSource::Photos as u8 {
-                x += 1;
-            }
-            let len = x - start;
-            if len < 2 * HALF + MAX_LAG + 2 {
-                continue;
-            }
-            let l: Vec<f64> = (start..x).map(|xx| luma(xx, y)).collect();
-            let mut pre = vec![0f64; len + 1];
-            for i in 0..len {
-                pre[i + 1] = pre[i] + l[i];
-            }
-            let d: Vec<f64> = (HALF..len - HALF)
-                .map(|i| l[i] - (pre[i + HALF + 1] - pre[i - HALF]) / (2 * HALF + 1) as f64)
-                .collect();
-            for lag in 0..=MAX_LAG {
-                for i in 0..d.len() - lag {
-                    num[lag] += d[i] * d[i + lag];
-                    e0[lag] += d[i] * d[i];
-                    e1[lag] += d[i + lag] * d[i + lag];
+    let rows: Vec<Sums> = (0..n)
+        .into_par_iter()
+        .step_by(stride)
+        .map(|y| {
+            let [mut num, mut e0, mut e1] = [[0f64; MAX_LAG + 1]; 3];
+            let row = &source[y * n..(y + 1) * n];
+            // Runs of seen texels long enough to hold the window and the lags.
+            let mut x = 0;
+            while x < n {
+                if row[x] != TexelSource::Photos as u8 {
+                    x += 1;
+                    continue;
+                }
+                let start = x;
+                while x < n && row[x] == TexelSource::Photos as u8 {
+                    x += 1;
+                }
+                let len = x - start;
+                if len < 2 * HALF + MAX_LAG + 2 {
+                    continue;
+                }
+                let l: Vec<f64> = (start..x).map(|xx| luma(xx, y)).collect();
+                let mut pre = vec![0f64; len + 1];
+                for i in 0..len {
+                    pre[i + 1] = pre[i] + l[i];
+                }
+                let d: Vec<f64> = (HALF..len - HALF)
+                    .map(|i| l[i] - (pre[i + HALF + 1] - pre[i - HALF]) / (2 * HALF + 1) as f64)
+                    .collect();
+                for lag in 0..=MAX_LAG {
+                    for i in 0..d.len() - lag {
+                        num[lag] += d[i] * d[i + lag];
+                        e0[lag] += d[i] * d[i];
+                        e1[lag] += d[i + lag] * d[i + lag];
+                    }
                 }
             }
+            [num, e0, e1]
+        })
+        .collect();
+    let [mut num, mut e0, mut e1] = [[0f64; MAX_LAG + 1]; 3];
+    for [a, b, c] in &rows {
+        for lag in 0..=MAX_LAG {
+            num[lag] += a[lag];
+            e0[lag] += b[lag];
+            e1[lag] += c[lag];
         }
     }
     if e0[0] < 1e-9 {
@@ -97,17 +112,21 @@ pub fn feature_scale(color: &image::Rgb32FImage, source: &[u8]) -> f64 {
 
 /// Per face: texels no photograph coloured and texels photographs coloured.
 pub(super) fn face_counts(atlas: &Atlas, source: &[u8], faces: usize) -> (Vec<u32>, Vec<u32>) {
-    let (mut hidden, mut seen) = (vec![0u32; faces], vec![0u32; faces]);
-    for (i, &s) in source.iter().enumerate() {
+    use std::sync::atomic::{AtomicU32, Ordering::Relaxed};
+    // Counted in parallel (integer counts: the same whatever the order).
+    let count = || (0..faces).map(|_| AtomicU32::new(0)).collect::<Vec<_>>();
+    let (hidden, seen) = (count(), count());
+    source.par_iter().enumerate().for_each(|(i, &s)| {
         if let Some(f) = atlas.owner(i) {
             if s == TexelSource::Photos as u8 {
-                seen[f as usize] += 1;
+                seen[f as usize].fetch_add(1, Relaxed);
             } else if TexelSource::is_unseen(s) {
-                hidden[f as usize] += 1;
+                hidden[f as usize].fetch_add(1, Relaxed);
             }
         }
-    }
-    (hidden, seen)
+    });
+    let plain = |v: Vec<AtomicU32>| v.into_iter().map(AtomicU32::into_inner).collect();
+    (plain(hidden), plain(seen))
 }
 
 /// Connected components (through shared edges) of the faces `member` marks, each with its
