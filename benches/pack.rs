@@ -10,7 +10,7 @@
 //! The 10.6M-face scale mesh's atlas: `scantex param <work>/mesh_s2_m3.ply -o p.obj` on the
 //! mesh `benches/scale_curve.py <work> 10000000:50` writes, then this on `p.obj` at 8192.
 
-use scantex::atlas::pack::{coverage, pack, PackOptions};
+use scantex::atlas::pack::{coverage_counts, pack, PackOptions};
 use scantex::atlas::param::ChartMap;
 use scantex::mesh::FaceId;
 use std::collections::HashMap;
@@ -90,9 +90,9 @@ fn main() {
             std::process::exit(1)
         });
         let secs = t.elapsed().as_secs_f64();
-        let cov = coverage(&packed.uv, &packed.face_chart, size, packed.pages);
-        let used = cov.iter().filter(|&&c| c > 0).count() as f64 / cov.len() as f64;
-        let overlaps = cov.iter().filter(|&&c| c > 1).count();
+        let (covered, overlaps) =
+            coverage_counts(&packed.uv, &packed.face_chart, size, packed.pages);
+        let used = covered as f64 / (size as usize * size as usize * packed.pages as usize) as f64;
         let mut h = std::collections::hash_map::DefaultHasher::new();
         for c in &packed.uv.coords {
             c.x.to_bits().hash(&mut h);

@@ -686,9 +686,7 @@ fn measure_with(
         .map(|f| uv.face_page(f) + 1)
         .max()
         .unwrap_or(1);
-    let cov = pack::coverage(uv, face_chart, size, pages);
-    let covered = cov.iter().filter(|&&c| c > 0).count();
-    let overlapping = cov.iter().filter(|&&c| c > 1).count();
+    let (covered, overlapping) = pack::coverage_counts(uv, face_chart, size, pages);
     let (mut seam, mut total) = (0.0, 0.0);
     for (f, face) in m.faces.iter().enumerate() {
         for k in 0..3 {
@@ -714,7 +712,7 @@ fn measure_with(
             .unwrap_or(0),
         stretch,
         seam_ratio: if total > 0.0 { seam / total } else { 0.0 },
-        utilisation: covered as f64 / cov.len() as f64,
+        utilisation: covered as f64 / (size as usize * size as usize * pages as usize) as f64,
         pages,
         overlapping_texels: overlapping,
         texels_per_unit: 0.0,
