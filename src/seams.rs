@@ -63,6 +63,38 @@ fn bilinear(img: &Rgb32FImage, p: Vector2<f64>) -> f64 {
     top * (1.0 - fy) + bot * fy
 }
 
+/// The texels that enter the view-boundary sums, one bit per texel (rows of `w.div_ceil(64)`
+/// words, returned with the row length): coloured from photographs, with a best photograph,
+/// and distance-2 interior (the 5 x 5 neighbourhood all chart texels). Built a row at a time
+/// in parallel: testing the neighbourhood at every look took most of the seam stage at 8192.
+fn interior_photo_texels(source: &[u8], best: &[u16], w: usize, h: usize) -> (Vec<u64>, usize) {
+    let chart = |s: u8| (1..=4).contains(&s);
+    let photos = TexelSource::Photos as u8;
+    let wpr = w.div_ceil(64).max(1);
+    let mut bits = vec![0u64; wpr * h];
+    if w >= 5 && h >= 5 {
+        bits.par_chunks_mut(wpr)
+            .enumerate()
+            .filter(|(y, _)| (2..h - 2).contains(y))
+            .for_each(|(y, row)| {
+                // Columns whose five rows y-2..=y+2 are all chart, then runs of five of them.
+                let mut run = 0usize;
+                for x in 0..w {
+                    let col = (y - 2..=y + 2).all(|yy| chart(source[yy * w + x]));
+                    run = if col { run + 1 } else { 0 };
+                    // Column x closes a run of five: the texel at its centre, x - 2, is interior.
+                    if run >= 5 {
+                        let (c, i) = (x - 2, y * w + x - 2);
+                        if source[i] == photos && best[i] != NO_PHOTO {
+                            row[c / 64] |= 1 << (c % 64);
+                        }
+                    }
+                }
+            });
+    }
+    (bits, wpr)
+}
+
 /// Both ratios for `atlas` (page 0 of `mesh`'s UVs), with each texel's [`TexelSource`] and
 /// best photograph as [`crate::resample::Resampled`] records them.
 pub fn seam_visibility(
@@ -73,34 +105,7 @@ pub fn seam_visibility(
 ) -> SeamReport {
     let (w, h) = atlas.dimensions();
     let (w, h) = (w as usize, h as usize);
-    let chart = |s: u8| (1..=4).contains(&s);
-    let photos = TexelSource::Photos as u8;
-    // Which texels enter the sums (coloured from photographs, with a best photograph, and
-    // distance-2 interior: the 5 x 5 neighbourhood all chart), one bit per texel, a row at a
-    // time: testing the neighbourhood at every look took most of this stage at 8192.
-    let wpr = w.div_ceil(64).max(1);
-    let mut ok_bits = vec![0u64; wpr * h];
-    if w >= 5 && h >= 5 {
-        ok_bits
-            .par_chunks_mut(wpr)
-            .enumerate()
-            .filter(|(y, _)| (2..h - 2).contains(y))
-            .for_each(|(y, bits)| {
-                // Columns whose five rows y-2..=y+2 are all chart, then runs of five of them.
-                let mut run = 0usize;
-                for x in 0..w {
-                    let col = (y - 2..=y + 2).all(|yy| chart(source[yy * w + x]));
-                    run = if col { run + 1 } else { 0 };
-                    // Column x closes a run of five: the texel at its centre, x - 2, is interior.
-                    if run >= 5 {
-                        let (c, i) = (x - 2, y * w + x - 2);
-                        if source[i] == photos && best[i] != NO_PHOTO {
-                            bits[c / 64] |= 1 << (c % 64);
-                        }
-                    }
-                }
-            });
-    }
+    let (ok_bits, wpr) = interior_photo_texels(source, best, w, h);
     let ok = |i: usize| {
         let (x, y) = (i % w, i / w);
         ok_bits[y * wpr + x / 64] >> (x % 64) & 1 == 1
@@ -190,6 +195,50 @@ fn chart_borders(mesh: &Mesh, atlas: &Rgb32FImage) -> (f64, f64, u64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn interior_bits_are_the_texels_whose_5x5_neighbourhood_is_chart() {
+        let mut rng = crate::rng::SplitMix64::new(5);
+        for (w, h) in [(3, 9), (5, 5), (70, 23), (130, 40)] {
+            // Mostly chart texels with random holes, sources and missing best photographs.
+            let source: Vec<u8> = (0..w * h)
+                .map(|_| match rng.next_f64() {
+                    r if r < 0.05 => TexelSource::Empty as u8,
+                    r if r < 0.08 => TexelSource::Gutter as u8,
+                    r if r < 0.15 => TexelSource::Red as u8,
+                    _ => TexelSource::Photos as u8,
+                })
+                .collect();
+            let best: Vec<u16> = (0..w * h)
+                .map(|_| if rng.next_f64() < 0.05 { NO_PHOTO } else { 1 })
+                .collect();
+            let (bits, wpr) = interior_photo_texels(&source, &best, w, h);
+            let chart = |s: u8| (1..=4).contains(&s);
+            let mut ones = 0;
+            for y in 0..h {
+                for x in 0..w {
+                    let i = y * w + x;
+                    let interior = x >= 2
+                        && y >= 2
+                        && x + 2 < w
+                        && y + 2 < h
+                        && (y - 2..=y + 2)
+                            .all(|yy| (x - 2..=x + 2).all(|xx| chart(source[yy * w + xx])));
+                    let want =
+                        interior && source[i] == TexelSource::Photos as u8 && best[i] != NO_PHOTO;
+                    assert_eq!(
+                        bits[y * wpr + x / 64] >> (x % 64) & 1 == 1,
+                        want,
+                        "{w}x{h} at ({x}, {y})"
+                    );
+                    ones += usize::from(want);
+                }
+            }
+            if w >= 70 {
+                assert!(ones > 0, "{w}x{h}: some interior texels");
+            }
+        }
+    }
 
     #[test]
     fn a_step_between_photographs_shows_and_a_smooth_field_does_not() {
