@@ -37,6 +37,21 @@ impl BitMask {
         }
     }
 
+    /// `len` elements, element `i` set where `f(i)`: 64 elements a word, the words in
+    /// parallel (whole-atlas masks at 8192 are 67M elements).
+    pub fn from_fn_par(len: usize, f: impl Fn(usize) -> bool + Sync) -> Self {
+        use rayon::prelude::*;
+        let mut bits = vec![0u64; len.div_ceil(64)];
+        bits.par_iter_mut().enumerate().for_each(|(k, w)| {
+            for i in 64 * k..(64 * k + 64).min(len) {
+                if f(i) {
+                    *w |= 1 << (i % 64);
+                }
+            }
+        });
+        BitMask { bits, len }
+    }
+
     /// Number of elements.
     pub fn len(&self) -> usize {
         self.len

@@ -20,6 +20,7 @@
 
 use crate::atlas::texels::border_samples;
 use crate::mesh::Mesh;
+use crate::planar::BitMask;
 use crate::resample::{TexelSource, NO_PHOTO};
 use image::Rgb32FImage;
 use nalgebra::Vector2;
@@ -63,36 +64,23 @@ fn bilinear(img: &Rgb32FImage, p: Vector2<f64>) -> f64 {
     top * (1.0 - fy) + bot * fy
 }
 
-/// The texels that enter the view-boundary sums, one bit per texel (rows of `w.div_ceil(64)`
-/// words, returned with the row length): coloured from photographs, with a best photograph,
-/// and distance-2 interior (the 5 x 5 neighbourhood all chart texels). Built a row at a time
-/// in parallel: testing the neighbourhood at every look took most of the seam stage at 8192.
-fn interior_photo_texels(source: &[u8], best: &[u16], w: usize, h: usize) -> (Vec<u64>, usize) {
+/// The texels that enter the view-boundary sums: coloured from photographs, with a best
+/// photograph, and distance-2 interior (the 5 x 5 neighbourhood all chart texels). In two
+/// parallel passes, columns of five then rows of five: testing the whole neighbourhood at
+/// every look took most of the seam stage at 8192.
+fn interior_photo_texels(source: &[u8], best: &[u16], w: usize, h: usize) -> BitMask {
     let chart = |s: u8| (1..=4).contains(&s);
-    let photos = TexelSource::Photos as u8;
-    let wpr = w.div_ceil(64).max(1);
-    let mut bits = vec![0u64; wpr * h];
-    if w >= 5 && h >= 5 {
-        bits.par_chunks_mut(wpr)
-            .enumerate()
-            .filter(|(y, _)| (2..h - 2).contains(y))
-            .for_each(|(y, row)| {
-                // Columns whose five rows y-2..=y+2 are all chart, then runs of five of them.
-                let mut run = 0usize;
-                for x in 0..w {
-                    let col = (y - 2..=y + 2).all(|yy| chart(source[yy * w + x]));
-                    run = if col { run + 1 } else { 0 };
-                    // Column x closes a run of five: the texel at its centre, x - 2, is interior.
-                    if run >= 5 {
-                        let (c, i) = (x - 2, y * w + x - 2);
-                        if source[i] == photos && best[i] != NO_PHOTO {
-                            row[c / 64] |= 1 << (c % 64);
-                        }
-                    }
-                }
-            });
-    }
-    (bits, wpr)
+    let inner = |v: usize, n: usize| v >= 2 && v + 2 < n;
+    // Texels whose column of five (two rows up, two down) is all chart.
+    let column = BitMask::from_fn_par(w * h, |i| {
+        inner(i / w, h) && (i - 2 * w..=i + 2 * w).step_by(w).all(|j| chart(source[j]))
+    });
+    BitMask::from_fn_par(w * h, |i| {
+        source[i] == TexelSource::Photos as u8
+            && best[i] != NO_PHOTO
+            && inner(i % w, w)
+            && (i - 2..=i + 2).all(|j| column.get(j))
+    })
 }
 
 /// Both ratios for `atlas` (page 0 of `mesh`'s UVs), with each texel's [`TexelSource`] and
@@ -105,11 +93,8 @@ pub fn seam_visibility(
 ) -> SeamReport {
     let (w, h) = atlas.dimensions();
     let (w, h) = (w as usize, h as usize);
-    let (ok_bits, wpr) = interior_photo_texels(source, best, w, h);
-    let ok = |i: usize| {
-        let (x, y) = (i % w, i / w);
-        ok_bits[y * wpr + x / 64] >> (x % 64) & 1 == 1
-    };
+    let interior = interior_photo_texels(source, best, w, h);
+    let ok = |i: usize| interior.get(i);
     let y_at = |i: usize| luma(atlas.get_pixel((i % w) as u32, (i / w) as u32).0);
     // Per row band: sums for the global ratio (across, within) and the local one (across
     // with both flanking pairs within, and those flanks).
@@ -212,7 +197,7 @@ mod tests {
             let best: Vec<u16> = (0..w * h)
                 .map(|_| if rng.next_f64() < 0.05 { NO_PHOTO } else { 1 })
                 .collect();
-            let (bits, wpr) = interior_photo_texels(&source, &best, w, h);
+            let bits = interior_photo_texels(&source, &best, w, h);
             let chart = |s: u8| (1..=4).contains(&s);
             let mut ones = 0;
             for y in 0..h {
@@ -226,11 +211,7 @@ mod tests {
                             .all(|yy| (x - 2..=x + 2).all(|xx| chart(source[yy * w + xx])));
                     let want =
                         interior && source[i] == TexelSource::Photos as u8 && best[i] != NO_PHOTO;
-                    assert_eq!(
-                        bits[y * wpr + x / 64] >> (x % 64) & 1 == 1,
-                        want,
-                        "{w}x{h} at ({x}, {y})"
-                    );
+                    assert_eq!(bits.get(i), want, "{w}x{h} at ({x}, {y})");
                     ones += usize::from(want);
                 }
             }

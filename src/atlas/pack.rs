@@ -1269,38 +1269,14 @@ pub fn raster_triangle(
     }
 }
 
-/// Rasterises the UV triangles at `size` x `size` texels per page (texel centres) and returns,
-/// per texel of `pages` pages (page after page), how many charts cover it (0, 1, or more if
-/// charts overlap). A face belongs to the page of its centroid's u ([`UvMap::face_page`]).
-pub fn coverage(uv: &UvMap, face_chart: &[u32], size: u32, pages: u32) -> Vec<u8> {
-    let per = (size * size) as usize;
-    let mut owner = vec![u32::MAX; per * pages as usize];
-    let mut count = vec![0u8; per * pages as usize];
-    let n = size as f64;
-    for (f, t) in uv.faces.iter().enumerate() {
-        let page = (uv.face_page(f) as usize).min(pages as usize - 1);
-        let q = t.map(|i| {
-            let c = uv.coords[i as usize].cast::<f64>();
-            Vector2::new(c.x - page as f64, c.y) * n
-        });
-        raster_triangle(q, size, size, |x, y| {
-            let i = page * per + (y * size + x) as usize;
-            if owner[i] != face_chart[f] {
-                count[i] = count[i].saturating_add(1);
-                owner[i] = face_chart[f];
-            }
-        });
-    }
-    count
-}
-
 /// Rows of a band of [`coverage_counts`].
 const COVERAGE_BAND: u32 = 128;
 
-/// The texels [`coverage`] finds covered (by one chart or more) and overlapping (by two or
-/// more), counted in bands of rows in parallel: each band sees its faces in face order, so
-/// every texel counts as in the serial pass, and holds only its own rows' owners (the whole
-/// pass held 5 bytes per texel of every page, 335 MB at 8192, on one core).
+/// The texels of `pages` pages of `size` x `size` covered by one chart or more and by two or
+/// more (overlapping), rasterising the UV triangles at texel centres; a face belongs to the
+/// page of its centroid's u ([`UvMap::face_page`]). Counted in bands of rows in parallel:
+/// each band sees its faces in face order and holds only its own rows' owners (a serial pass
+/// over a whole-page grid held 5 bytes per texel, 335 MB at 8192, on one core).
 pub fn coverage_counts(uv: &UvMap, face_chart: &[u32], size: u32, pages: u32) -> (usize, usize) {
     if size == 0 || pages == 0 {
         return (0, 0);
@@ -1373,6 +1349,30 @@ pub fn coverage_counts(uv: &UvMap, face_chart: &[u32], size: u32, pages: u32) ->
 mod tests {
     use super::*;
     use crate::rng::SplitMix64;
+
+    /// The serial pass [`coverage_counts`] replaced, its reference: per texel of `pages`
+    /// pages (page after page), how many charts cover it (0, 1, or more if charts overlap).
+    fn coverage(uv: &UvMap, face_chart: &[u32], size: u32, pages: u32) -> Vec<u8> {
+        let per = (size * size) as usize;
+        let mut owner = vec![u32::MAX; per * pages as usize];
+        let mut count = vec![0u8; per * pages as usize];
+        let n = size as f64;
+        for (f, t) in uv.faces.iter().enumerate() {
+            let page = (uv.face_page(f) as usize).min(pages as usize - 1);
+            let q = t.map(|i| {
+                let c = uv.coords[i as usize].cast::<f64>();
+                Vector2::new(c.x - page as f64, c.y) * n
+            });
+            raster_triangle(q, size, size, |x, y| {
+                let i = page * per + (y * size + x) as usize;
+                if owner[i] != face_chart[f] {
+                    count[i] = count[i].saturating_add(1);
+                    owner[i] = face_chart[f];
+                }
+            });
+        }
+        count
+    }
 
     #[test]
     fn coverage_counts_in_bands_equal_the_serial_pass() {

@@ -104,7 +104,6 @@ pub fn restore_atlas(
         )
     });
     // Deep regions first: they leave the domain, so no hole reads their vertex colours.
-    let mut deep_mask = BitMask::new(n * n);
     let deep = match &topo {
         Some((adj, (hidden, seen))) if handing.min_depth.is_finite() => regions::deep_regions(
             mesh,
@@ -116,7 +115,9 @@ pub fn restore_atlas(
         ),
         _ => Vec::new(),
     };
-    if !deep.is_empty() {
+    let deep_mask = if deep.is_empty() {
+        BitMask::new(n * n)
+    } else {
         let mut is_deep = vec![false; mesh.num_faces()];
         for r in &deep {
             for &f in &r.faces {
@@ -124,17 +125,16 @@ pub fn restore_atlas(
             }
         }
         // The n^2 passes here run in parallel: each took a few tenths of a second at 8192.
-        let deep_texels: Vec<usize> = (0..n * n)
-            .into_par_iter()
-            .filter(|&i| {
-                unseen(res.source[i]) && atlas.owner(i).is_some_and(|f| is_deep[f as usize])
-            })
-            .collect();
-        for i in deep_texels {
-            deep_mask.set(i);
-            domain[i] = false;
-        }
-    }
+        let m = BitMask::from_fn_par(n * n, |i| {
+            unseen(res.source[i]) && atlas.owner(i).is_some_and(|f| is_deep[f as usize])
+        });
+        domain.par_iter_mut().enumerate().for_each(|(i, d)| {
+            if m.get(i) {
+                *d = false;
+            }
+        });
+        m
+    };
     // Charts no photograph saw at all have nothing to restore from in 2D: their vertex colours
     // (continuous across seams, from the 3D neighbourhood) stay. Charts are separate domain
     // components (gutter lies between them), so "reachable from a seen texel" is "in a chart
@@ -154,18 +154,13 @@ pub fn restore_atlas(
     let mut left = Unrestored {
         size: n,
         too_large: BitMask::new(n * n),
-        unreachable: BitMask::new(n * n),
+        unreachable: BitMask::from_fn_par(n * n, |i| {
+            domain[i] && unseen(res.source[i]) && reach[i] == u8::MAX
+        }),
         deep: deep_mask,
         feature_scale,
         regions: Vec::new(),
     };
-    let unreachable: Vec<usize> = (0..n * n)
-        .into_par_iter()
-        .filter(|&i| domain[i] && unseen(res.source[i]) && reach[i] == u8::MAX)
-        .collect();
-    for i in unreachable {
-        left.unreachable.set(i);
-    }
     let texels_left_unreachable = left.unreachable.count() as u64;
     drop(reach);
     // Large unseen regions are exemplar synthesis's (stage 6): pixel-by-pixel synthesis of a
