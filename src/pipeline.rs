@@ -866,6 +866,7 @@ fn texture_page(
                 atlas,
                 &mut resampled,
                 left,
+                ctx.photos,
                 ctx.up,
                 ctx.user,
                 &opts.synth,

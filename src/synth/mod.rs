@@ -295,8 +295,9 @@ fn detail(texels: &[[f32; 3]], w: usize, h: usize, sigma: f64) -> Vec<[f32; 3]> 
 }
 
 /// Stage 6: fills the unseen texels of every region in `left` (low band plus exemplar
-/// detail), then extends the charts into the gutter again. `up` orients the patches (the
-/// photographs' mean up); `user` is the user's exemplar image when
+/// detail), then extends the charts into the gutter again. `photos` are the registered
+/// photographs, indexed as `res.best_photo` (how sharply each crop was seen decides which can
+/// serve as exemplars); `up` orients the patches (the photographs' mean up); `user` is the user's exemplar image when
 /// [`ExemplarSource::File`] is chosen (read by the caller).
 #[allow(clippy::too_many_arguments)]
 pub fn synthesize(
@@ -305,6 +306,7 @@ pub fn synthesize(
     atlas: &Atlas,
     res: &mut Resampled,
     left: &Unrestored,
+    photos: &[crate::scene::Photo],
     up: Vector3<f64>,
     user: Option<&image::Rgb32FImage>,
     opts: &SynthOptions,
@@ -367,10 +369,35 @@ pub fn synthesize(
     let adj = crate::mesh::topology::face_adjacency(mesh);
     let mut used: Vec<(ExemplarUsed, Option<u32>)> = Vec::with_capacity(left.regions.len());
     // Each region's photographed texels around its rim: its exemplar's look and constraints.
+    let eyes: Vec<pick::Eye> = photos
+        .iter()
+        .map(|p| pick::Eye {
+            view: &p.view,
+            focal: crate::depth::focal_px(&p.view),
+        })
+        .collect();
+    // Candidate crops (for the automatic choice) and the least sharpness the rims' texels
+    // need to describe the surface: texels seen at a grazing angle carry stripes, not its
+    // texture.
+    let side = (((2.0 * radius + 8.0) / 8.0).ceil() * 8.0) as usize;
+    let lag = (sigma.round() as usize).max(1);
+    let (cands, floor) = if user.is_none() {
+        let mut cands = pick::candidates(mesh, atlas, res, &eyes, &up, side, lag);
+        if cands.is_empty() {
+            cands = pick::candidates(mesh, atlas, res, &eyes, &up, side / 2, lag);
+        }
+        pick::sharp_only(cands)
+    } else {
+        (Vec::new(), 0.0)
+    };
     let rims: Vec<Vec<(usize, u32)>> = left
         .regions
         .iter()
-        .map(|r| pick::photographed_texels(atlas, &res.source, &rim_faces(&adj, &member, &r.faces)))
+        .map(|r| {
+            let all =
+                pick::photographed_texels(atlas, &res.source, &rim_faces(&adj, &member, &r.faces));
+            pick::sharp_texels(mesh, atlas, res, &eyes, &up, all, floor)
+        })
         .collect();
     if let Some(img) = user {
         let (w, h) = (img.width() as usize, img.height() as usize);
@@ -382,12 +409,6 @@ pub fn synthesize(
         });
         used.extend(left.regions.iter().map(|_| (ExemplarUsed::File, Some(0))));
     } else {
-        let side = (((2.0 * radius + 8.0) / 8.0).ceil() * 8.0) as usize;
-        let lag = (sigma.round() as usize).max(1);
-        let mut cands = pick::candidates(mesh, atlas, &res.color, &res.source, &up, side, lag);
-        if cands.is_empty() {
-            cands = pick::candidates(mesh, atlas, &res.color, &res.source, &up, side / 2, lag);
-        }
         let mut chosen: Vec<(usize, usize, usize)> = Vec::new();
         for (r, rim) in left.regions.iter().zip(&rims) {
             let (mut colour, mut cnt) = ([0f64; 3], 0.0f64);

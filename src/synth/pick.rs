@@ -6,8 +6,9 @@
 
 use super::surface::tangent_up;
 use crate::atlas::Atlas;
+use crate::camera::PosedCamera;
 use crate::mesh::{FaceId, Mesh};
-use crate::resample::TexelSource;
+use crate::resample::{Resampled, TexelSource, NO_PHOTO};
 use nalgebra::{Matrix2, Matrix2x3, Point3, Vector3};
 use rayon::prelude::*;
 
@@ -42,6 +43,32 @@ pub(super) struct Candidate {
     pub(super) spread: f64,
     /// Tangent offsets (right, up; scene units) to crop texels.
     pub(super) m: Matrix2<f64>,
+    /// How sharply the photographs saw the crop: the least, over its sampled texels, of the
+    /// winning photograph's pixels per texel along the most foreshortened direction. Low
+    /// where the crop was seen at a grazing angle or from afar: there a photograph pixel is
+    /// stretched over several texels and its edges come out as stripes, which pasted
+    /// elsewhere would repeat as a pattern the surface never had.
+    pub(super) sharpness: f64,
+}
+
+/// A photograph as exemplar choice sees it: its pose and focal length in pixels.
+pub(super) struct Eye<'a> {
+    /// Camera and pose.
+    pub(super) view: &'a PosedCamera,
+    /// Focal length, pixels.
+    pub(super) focal: f64,
+}
+
+/// Pixels per texel along the most foreshortened direction with which `eye` saw point `p`
+/// of a face with unit normal `n` and `tpu` texels per scene unit (0 when it faces away).
+fn pixels_per_texel(eye: &Eye, p: &Point3<f64>, n: &Vector3<f64>, tpu: f64) -> f64 {
+    let cam = eye.view.pose.transform(p);
+    let to_eye = eye.view.pose.center() - p;
+    let cos = n.dot(&to_eye) / to_eye.norm().max(1e-300);
+    if cam.z <= 0.0 || cos <= 0.0 || tpu <= 0.0 {
+        return 0.0;
+    }
+    eye.focal * cos / (cam.z * tpu)
 }
 
 /// The map from face `f`'s tangent offsets (right, up) to texels.
@@ -72,16 +99,17 @@ pub(super) fn face_map(
 
 /// Every crop of side `size` (a multiple of [`BLOCK`]) on a grid of half its side whose
 /// texels were all coloured by photographs and belong to one chart; detail measured at `lag`
-/// texels.
+/// texels, sharpness from `eyes` (indexed as `res.best_photo`).
 pub(super) fn candidates(
     mesh: &Mesh,
     atlas: &Atlas,
-    color: &image::Rgb32FImage,
-    source: &[u8],
+    res: &Resampled,
+    eyes: &[Eye],
     up: &Vector3<f64>,
     size: usize,
     lag: usize,
 ) -> Vec<Candidate> {
+    let (color, source) = (&res.color, &res.source[..]);
     let n = atlas.size as usize;
     let nb = n / BLOCK;
     if size < BLOCK || size > n || nb == 0 {
@@ -133,6 +161,7 @@ pub(super) fn candidates(
             let luma = |i: usize| texel_luma(data, i);
             let mut detail = 0.0;
             let mut quad = [[0f64; 4]; 4];
+            let mut sharpness = f64::INFINITY;
             for y in (y0..y0 + size).step_by(4) {
                 for x in (x0..x0 + size).step_by(4) {
                     let i = y * n + x;
@@ -146,8 +175,21 @@ pub(super) fn candidates(
                         mean[k] += data[i * 3 + k] as f64;
                     }
                     facing += nrm.normalize().dot(up);
-                    centre += (tri[0].coords + tri[1].coords + tri[2].coords) / 3.0;
-                    m += face_map(mesh, atlas, f, up)?;
+                    let mid = Point3::from((tri[0].coords + tri[1].coords + tri[2].coords) / 3.0);
+                    centre += mid.coords;
+                    let fm = face_map(mesh, atlas, f, up)?;
+                    m += fm;
+                    let best = res.best_photo[i];
+                    let px = match eyes.get(best as usize) {
+                        Some(eye) if best != NO_PHOTO => pixels_per_texel(
+                            eye,
+                            &mid,
+                            &nrm.normalize(),
+                            fm.determinant().abs().sqrt(),
+                        ),
+                        _ => 0.0,
+                    };
+                    sharpness = sharpness.min(px);
                     let (xa, xb) = (x.max(x0 + lag) - lag, (x + lag).min(x0 + size - 1));
                     let (ya, yb) = (y.max(y0 + lag) - lag, (y + lag).min(y0 + size - 1));
                     let around =
@@ -184,9 +226,84 @@ pub(super) fn candidates(
                 centre: Point3::from(centre / c),
                 detail: detail / c,
                 m: m / c,
+                sharpness,
             })
         })
         .collect()
+}
+
+/// Share of the sharpest candidates' sharpness (their 90th percentile) a candidate needs to be
+/// kept: below half of it, a photograph pixel spans more than twice the texels it does where
+/// the photographs saw best.
+pub(super) const SHARP_SHARE: f64 = 0.5;
+
+/// The candidates seen sharply enough ([`SHARP_SHARE`] of the 90th percentile of
+/// sharpness), in their order, and that least sharpness; all of them and 0 when none is.
+pub(super) fn sharp_only(cands: Vec<Candidate>) -> (Vec<Candidate>, f64) {
+    if cands.is_empty() {
+        return (cands, 0.0);
+    }
+    let mut s: Vec<f64> = cands.iter().map(|c| c.sharpness).collect();
+    let k = (s.len() * 9 / 10).min(s.len() - 1);
+    let top = *s.select_nth_unstable_by(k, f64::total_cmp).1;
+    let floor = SHARP_SHARE * top;
+    if cands.iter().any(|c| c.sharpness >= floor) {
+        let kept = cands.into_iter().filter(|c| c.sharpness >= floor).collect();
+        (kept, floor)
+    } else {
+        (cands, 0.0)
+    }
+}
+
+/// The texels of `texels` (from [`photographed_texels`]) that their winning photograph saw
+/// with at least `floor` pixels per texel (as [`Candidate::sharpness`]); all of them when
+/// fewer than 64 are.
+pub(super) fn sharp_texels(
+    mesh: &Mesh,
+    atlas: &Atlas,
+    res: &Resampled,
+    eyes: &[Eye],
+    up: &Vector3<f64>,
+    texels: Vec<(usize, u32)>,
+    floor: f64,
+) -> Vec<(usize, u32)> {
+    if floor <= 0.0 {
+        return texels;
+    }
+    // One figure per face and photograph: the face's centroid stands for its texels.
+    let mut memo: Option<(u32, u16, f64)> = None;
+    let kept: Vec<(usize, u32)> = texels
+        .iter()
+        .copied()
+        .filter(|&(i, f)| {
+            let best = res.best_photo[i];
+            let px = match memo {
+                Some((mf, mb, px)) if mf == f && mb == best => px,
+                _ => {
+                    let tri = mesh.triangle(FaceId(f));
+                    let mid = Point3::from((tri[0].coords + tri[1].coords + tri[2].coords) / 3.0);
+                    let n = mesh.face_normal_area(FaceId(f)).normalize();
+                    let px = match (
+                        eyes.get(best as usize),
+                        face_map(mesh, atlas, f as usize, up),
+                    ) {
+                        (Some(eye), Some(fm)) if best != NO_PHOTO => {
+                            pixels_per_texel(eye, &mid, &n, fm.determinant().abs().sqrt())
+                        }
+                        _ => 0.0,
+                    };
+                    memo = Some((f, best, px));
+                    px
+                }
+            };
+            px >= floor
+        })
+        .collect();
+    if kept.len() >= 64 {
+        kept
+    } else {
+        texels
+    }
 }
 
 /// What a region's rim looks like, for choosing its exemplar.
@@ -292,4 +409,80 @@ pub(super) fn choose<'a>(
         .map(|c| (cost(c), c))
         .min_by(|a, b| a.0.total_cmp(&b.0))
         .map(|(_, c)| c)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::{Camera, CameraModel, Pose};
+
+    fn eye(view: &PosedCamera) -> Eye<'_> {
+        Eye {
+            view,
+            focal: crate::depth::focal_px(view),
+        }
+    }
+
+    /// A camera at the origin looking down +z (focal 1000 px): a point 2 units away on a face
+    /// turned towards it gets 1000 / 2 / tpu pixels per texel; turned by 60 degrees, half that
+    /// (the foreshortened direction); turned away or behind the camera, none.
+    #[test]
+    fn pixels_per_texel_follow_distance_and_foreshortening() {
+        let view = PosedCamera {
+            camera: Camera::new(
+                1,
+                CameraModel::Pinhole,
+                800,
+                600,
+                vec![1000.0, 1000.0, 400.0, 300.0],
+            )
+            .unwrap(),
+            pose: Pose::from_colmap([1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0]),
+        };
+        let e = eye(&view);
+        let p = Point3::new(0.0, 0.0, 2.0);
+        let tpu = 250.0;
+        let frontal = pixels_per_texel(&e, &p, &Vector3::new(0.0, 0.0, -1.0), tpu);
+        assert!((frontal - 2.0).abs() < 1e-9, "{frontal}");
+        let a = 60f64.to_radians();
+        let tilted = pixels_per_texel(&e, &p, &Vector3::new(a.sin(), 0.0, -a.cos()), tpu);
+        assert!((tilted - 1.0).abs() < 1e-9, "{tilted}");
+        assert_eq!(
+            pixels_per_texel(&e, &p, &Vector3::new(0.0, 0.0, 1.0), tpu),
+            0.0
+        );
+        let behind = Point3::new(0.0, 0.0, -2.0);
+        assert_eq!(
+            pixels_per_texel(&e, &behind, &Vector3::new(0.0, 0.0, 1.0), tpu),
+            0.0
+        );
+    }
+
+    fn cand(sharpness: f64) -> Candidate {
+        Candidate {
+            x: 0,
+            y: 0,
+            size: 16,
+            mean: [0.5; 3],
+            facing_up: 0.0,
+            centre: Point3::origin(),
+            detail: 1.0,
+            spread: 0.0,
+            m: Matrix2::identity(),
+            sharpness,
+        }
+    }
+
+    /// Of twenty crops seen at 1..20 pixels per texel the 90th percentile is 19: those under
+    /// half of it go, the rest keep their order; crops all unseen (0) are all kept.
+    #[test]
+    fn only_sharply_seen_crops_serve_as_exemplars() {
+        let (kept, floor) = sharp_only((1..=20).map(|s| cand(s as f64)).collect());
+        assert_eq!(floor, SHARP_SHARE * 19.0);
+        let s: Vec<f64> = kept.iter().map(|c| c.sharpness).collect();
+        assert_eq!(s, (10..=20).map(|v| v as f64).collect::<Vec<_>>());
+        let (kept, floor) = sharp_only(vec![cand(0.0), cand(0.0)]);
+        assert_eq!((kept.len(), floor), (2, 0.0));
+        assert!(sharp_only(Vec::new()).0.is_empty());
+    }
 }
