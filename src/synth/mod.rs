@@ -239,7 +239,7 @@ fn rim_detail(
     atlas: &Atlas,
     res: &Resampled,
     texels: &[(usize, u32)],
-    low: &[[f32; 3]],
+    low: &surface::LowBand,
     src: &Source,
 ) -> Vec<(nalgebra::Point3<f64>, [f32; 3])> {
     let n = atlas.size as usize;
@@ -250,7 +250,7 @@ fn rim_detail(
         .step_by(step)
         .filter_map(|&(i, f)| {
             let (b, p) = surface::texel_point(mesh, atlas, f, i % n, i / n)?;
-            let l = surface::at_bary(low, &mesh.faces[f as usize], &b);
+            let l = low.at(f, &mesh.faces[f as usize], &b);
             let obs: [f32; 3] = std::array::from_fn(|k| data[i * 3 + k] - l[k]);
             Some((p, src.ex.gaussianise(obs)))
         })
@@ -357,7 +357,8 @@ pub fn synthesize(
         }
     }
     let mut t = Instant::now();
-    let (low, fixed) = surface::low_band(mesh, atlas, &res.color, &member, &res.vertex_colors);
+    let adj = crate::mesh::topology::face_adjacency(mesh);
+    let low = surface::low_band(mesh, atlas, &res.color, &member, &adj, &res.vertex_colors);
     report.seconds_low_band = t.elapsed().as_secs_f64();
     t = Instant::now();
     // Exemplars: the user's, or per region the atlas crop most like its rim.
@@ -366,7 +367,6 @@ pub fn synthesize(
     let object_radius = (hi - lo).norm() / 2.0;
     let sigma = radius / 4.0;
     let mut sources: Vec<Source> = Vec::new();
-    let adj = crate::mesh::topology::face_adjacency(mesh);
     let mut used: Vec<(ExemplarUsed, Option<u32>)> = Vec::with_capacity(left.regions.len());
     // Each region's photographed texels around its rim: its exemplar's look and constraints.
     let eyes: Vec<pick::Eye> = photos
@@ -418,10 +418,10 @@ pub fn synthesize(
                 let na = mesh.face_normal_area(FaceId(f));
                 facing += na.dot(&up);
                 area += na.norm();
-                for v in &mesh.faces[f as usize] {
-                    if fixed[v.idx()] {
-                        for k in 0..3 {
-                            colour[k] += low[v.idx()][k] as f64;
+                for (k, v) in mesh.faces[f as usize].iter().enumerate() {
+                    if let Some(c) = low.fixed_corner(f, k) {
+                        for j in 0..3 {
+                            colour[j] += c[j] as f64;
                         }
                         centre += mesh.positions[v.idx()].coords;
                         cnt += 1.0;
@@ -433,10 +433,10 @@ pub fn synthesize(
                 for &f in &r.faces {
                     let tri = mesh.triangle(FaceId(f));
                     centre += (tri[0].coords + tri[1].coords + tri[2].coords) / 3.0;
-                    for v in &mesh.faces[f as usize] {
-                        for k in 0..3 {
-                            colour[k] += low[v.idx()][k] as f64 / 3.0;
-                        }
+                    let third = [1.0 / 3.0; 3];
+                    let c = low.at(f, &mesh.faces[f as usize], &third);
+                    for k in 0..3 {
+                        colour[k] += c[k] as f64;
                     }
                     cnt += 1.0;
                 }

@@ -75,20 +75,65 @@ pub(super) fn tangent_up(n: &Vector3<f64>, up: &Vector3<f64>) -> Vector3<f64> {
     }
 }
 
-/// The low band over the regions, per vertex: the vertex-colour fill (`init`, which carries
-/// colour from the nearest photographed vertices) plus a harmonic correction (uniform
-/// weights, on the regions' faces) that makes it meet, at every region vertex touching a face
-/// outside the regions, the mean colour of that face's texels (as restored or photographed).
-/// Vertices not in a region keep `init`; so does a region with no rim (a small pull towards
-/// no correction keeps the system definite). Also returns which vertices were fixed.
+/// Faces meeting across an edge at a smaller cosine between their normals (more than 30
+/// degrees apart, the sharp-edge angle modelling tools default to) meet at a crease: the low
+/// band keeps a value on each side of it. Measured in `docs/decisions.md` ("Creases in the
+/// low band").
+pub(super) const CREASE_COS: f64 = 0.866_025_403_784_439;
+
+/// The low band over the regions, per face corner: corners of a vertex on one side of a
+/// crease share a value, so a vertex where a cut face meets a skin carries both colours.
+pub(super) struct LowBand {
+    /// Per vertex: the value of faces the regions do not touch (the vertex-colour fill).
+    vertex: Vec<[f32; 3]>,
+    /// Face -> its index in `corners` (`u32::MAX`: not a region face or next to one).
+    face: Vec<u32>,
+    /// Per region face or face next to one: the band at its three corners.
+    corners: Vec<[[f32; 3]; 3]>,
+    /// Per such face: bit k set when corner k was fixed to the rim's colour.
+    fixed: Vec<u8>,
+}
+
+impl LowBand {
+    /// The band in face `f` (corners `fv`) at barycentrics `b`.
+    pub(super) fn at(&self, f: u32, fv: &[crate::mesh::VertexId; 3], b: &[f64; 3]) -> [f32; 3] {
+        match self.face[f as usize] {
+            u32::MAX => at_bary(&self.vertex, fv, b),
+            i => {
+                let c = &self.corners[i as usize];
+                std::array::from_fn(|k| {
+                    c[0][k] * b[0] as f32 + c[1][k] * b[1] as f32 + c[2][k] * b[2] as f32
+                })
+            }
+        }
+    }
+
+    /// The value at corner `k` of face `f` if it was fixed to the rim's colour.
+    pub(super) fn fixed_corner(&self, f: u32, k: usize) -> Option<[f32; 3]> {
+        match self.face[f as usize] {
+            u32::MAX => None,
+            i => (self.fixed[i as usize] >> k & 1 == 1).then(|| self.corners[i as usize][k]),
+        }
+    }
+}
+
+/// The low band over the regions: the vertex-colour fill (`init`, which carries colour from
+/// the nearest photographed vertices) plus a harmonic correction (uniform weights, on the
+/// regions' faces) that makes it meet, at every region corner, the mean colour of the texels
+/// (as restored or photographed) of the faces outside the regions around that corner's vertex
+/// on the same side of any crease ([`CREASE_COS`]). Corners of a vertex joined through
+/// smooth edges share one value; a region with no rim keeps `init` (a small pull towards no
+/// correction keeps the system definite). `adj` is the face adjacency.
 pub(super) fn low_band(
     mesh: &Mesh,
     atlas: &Atlas,
     color: &image::Rgb32FImage,
     member: &[bool],
+    adj: &[[u32; 3]],
     init: &[[f32; 3]],
-) -> (Vec<[f32; 3]>, Vec<bool>) {
+) -> LowBand {
     let nv = mesh.num_vertices();
+    let nf = mesh.num_faces();
     let mut in_region = vec![false; nv];
     for (f, fv) in mesh.faces.iter().enumerate() {
         if member[f] {
@@ -97,21 +142,70 @@ pub(super) fn low_band(
             }
         }
     }
-    // Rim faces: outside the regions, with a region vertex. Their mean colour fixes it.
-    let mut slot = vec![u32::MAX; mesh.num_faces()];
-    let mut rim_faces = Vec::new();
+    // Faces involved: the regions' and those outside with a region vertex (the rim faces).
+    let mut face = vec![u32::MAX; nf];
+    let mut involved: Vec<u32> = Vec::new();
     for (f, fv) in mesh.faces.iter().enumerate() {
-        if !member[f] && fv.iter().any(|v| in_region[v.idx()]) {
-            slot[f] = rim_faces.len() as u32;
-            rim_faces.push(f as u32);
+        if member[f] || fv.iter().any(|v| in_region[v.idx()]) {
+            face[f] = involved.len() as u32;
+            involved.push(f as u32);
         }
     }
-    let mut sums = vec![[0f64; 4]; rim_faces.len()];
+    // Corners (3 per involved face) of one vertex joined across smooth edges.
+    let normal = |f: u32| mesh.face_normal_area(FaceId(f)).try_normalize(1e-300);
+    let mut sets = crate::mesh::topology::UnionFind::new(involved.len() * 3);
+    for (i, &f) in involved.iter().enumerate() {
+        let fv = mesh.faces[f as usize];
+        for (k, &g) in adj[f as usize].iter().enumerate() {
+            if g == NO_FACE || face[g as usize] == u32::MAX {
+                continue;
+            }
+            let smooth = match (normal(f), normal(g)) {
+                (Some(a), Some(b)) => a.dot(&b) >= CREASE_COS,
+                _ => true,
+            };
+            if !smooth {
+                continue;
+            }
+            let j = face[g as usize] as usize;
+            let gv = mesh.faces[g as usize];
+            for c in [k, (k + 1) % 3] {
+                if let Some(d) = gv.iter().position(|v| *v == fv[c]) {
+                    sets.union(3 * i + c, 3 * j + d);
+                }
+            }
+        }
+    }
+    // Groups numbered in corner order (whichever corner the sets chose as root); each knows
+    // its vertex.
+    let corners_n = involved.len() * 3;
+    let mut group = vec![u32::MAX; corners_n];
+    let mut group_vertex: Vec<u32> = Vec::new();
+    for c in 0..corners_n {
+        let r = sets.find(c);
+        if group[r] == u32::MAX {
+            group[r] = group_vertex.len() as u32;
+            group_vertex.push(mesh.faces[involved[c / 3] as usize][c % 3].0);
+        }
+        group[c] = group[r];
+    }
+    drop(sets);
+    let ng = group_vertex.len();
+    let mut group_in_region = vec![false; ng];
+    for (i, &f) in involved.iter().enumerate() {
+        if member[f as usize] {
+            for k in 0..3 {
+                group_in_region[group[3 * i + k] as usize] = true;
+            }
+        }
+    }
+    // Rim faces' texel sums fix the region groups they touch.
+    let mut sums = vec![[0f64; 4]; involved.len()];
     let data: &[f32] = color.as_raw();
     for i in 0..atlas.size as usize * atlas.size as usize {
         if let Some(f) = atlas.owner(i) {
-            let s = slot[f as usize];
-            if s != u32::MAX {
+            let s = face[f as usize];
+            if s != u32::MAX && !member[f as usize] {
                 let acc = &mut sums[s as usize];
                 for k in 0..3 {
                     acc[k] += data[i * 3 + k] as f64;
@@ -120,56 +214,86 @@ pub(super) fn low_band(
             }
         }
     }
-    let mut fixed_sum = vec![[0f64; 4]; nv];
-    for (s, &f) in rim_faces.iter().enumerate() {
-        if sums[s][3] > 0.0 {
-            for v in &mesh.faces[f as usize] {
-                if in_region[v.idx()] {
-                    for k in 0..4 {
-                        fixed_sum[v.idx()][k] += sums[s][k];
-                    }
+    let mut fixed_sum = vec![[0f64; 4]; ng];
+    for (i, &f) in involved.iter().enumerate() {
+        if member[f as usize] || sums[i][3] == 0.0 {
+            continue;
+        }
+        for k in 0..3 {
+            let g = group[3 * i + k] as usize;
+            if group_in_region[g] {
+                for c in 0..4 {
+                    fixed_sum[g][c] += sums[i][c];
                 }
             }
         }
     }
-    let fixed: Vec<bool> = (0..nv).map(|v| fixed_sum[v][3] > 0.0).collect();
-    let mut out: Vec<[f32; 3]> = init.to_vec();
-    for v in 0..nv {
-        if fixed[v] {
-            out[v] = std::array::from_fn(|k| (fixed_sum[v][k] / fixed_sum[v][3]) as f32);
+    let fixed: Vec<bool> = (0..ng).map(|g| fixed_sum[g][3] > 0.0).collect();
+    let init_g: Vec<[f32; 3]> = group_vertex.iter().map(|&v| init[v as usize]).collect();
+    let mut out: Vec<[f32; 3]> = init_g.clone();
+    for g in 0..ng {
+        if fixed[g] {
+            out[g] = std::array::from_fn(|k| (fixed_sum[g][k] / fixed_sum[g][3]) as f32);
         }
     }
     // Unknowns and their neighbours through region faces.
-    let mut unknown = vec![u32::MAX; nv];
+    let mut unknown = vec![u32::MAX; ng];
     let mut vars = Vec::new();
-    for v in 0..nv {
-        if in_region[v] && !fixed[v] {
-            unknown[v] = vars.len() as u32;
-            vars.push(v as u32);
+    for g in 0..ng {
+        if group_in_region[g] && !fixed[g] {
+            unknown[g] = vars.len() as u32;
+            vars.push(g as u32);
         }
     }
-    if vars.is_empty() {
-        return (out, fixed);
-    }
-    let mut nbr: Vec<Vec<u32>> = vec![Vec::new(); vars.len()];
-    for (f, fv) in mesh.faces.iter().enumerate() {
-        if !member[f] {
-            continue;
-        }
-        for k in 0..3 {
-            let (a, b) = (fv[k].0, fv[(k + 1) % 3].0);
-            if unknown[a as usize] != u32::MAX {
-                nbr[unknown[a as usize] as usize].push(b);
+    if !vars.is_empty() {
+        let mut nbr: Vec<Vec<u32>> = vec![Vec::new(); vars.len()];
+        for (i, &f) in involved.iter().enumerate() {
+            if !member[f as usize] {
+                continue;
             }
-            if unknown[b as usize] != u32::MAX {
-                nbr[unknown[b as usize] as usize].push(a);
+            for k in 0..3 {
+                let (a, b) = (group[3 * i + k], group[3 * i + (k + 1) % 3]);
+                if unknown[a as usize] != u32::MAX {
+                    nbr[unknown[a as usize] as usize].push(b);
+                }
+                if unknown[b as usize] != u32::MAX {
+                    nbr[unknown[b as usize] as usize].push(a);
+                }
             }
         }
+        for n in &mut nbr {
+            n.sort_unstable();
+            n.dedup();
+        }
+        solve_correction(&nbr, &unknown, &vars, &init_g, &mut out);
     }
-    for n in &mut nbr {
-        n.sort_unstable();
-        n.dedup();
+    let corners: Vec<[[f32; 3]; 3]> = (0..involved.len())
+        .map(|i| std::array::from_fn(|k| out[group[3 * i + k] as usize]))
+        .collect();
+    let fixed_bits: Vec<u8> = (0..involved.len())
+        .map(|i| {
+            (0..3).fold(0u8, |m, k| {
+                m | u8::from(fixed[group[3 * i + k] as usize]) << k
+            })
+        })
+        .collect();
+    LowBand {
+        vertex: init.to_vec(),
+        face,
+        corners,
+        fixed: fixed_bits,
     }
+}
+
+/// The harmonic correction of the unknowns (`vars`, numbered by `unknown`) towards the fixed
+/// values in `out` (`out - init` at fixed neighbours), written into `out`.
+fn solve_correction(
+    nbr: &[Vec<u32>],
+    unknown: &[u32],
+    vars: &[u32],
+    init: &[[f32; 3]],
+    out: &mut [[f32; 3]],
+) {
     const EPS: f64 = 1e-3;
     for c in 0..3 {
         // (L + eps I) x = b: L the graph Laplacian over unknowns, b the fixed neighbours'
@@ -234,7 +358,6 @@ pub(super) fn low_band(
             out[v as usize][c] = init[v as usize][c] + x[i] as f32;
         }
     }
-    (out, fixed)
 }
 
 /// Options of the patch layout.
@@ -514,7 +637,7 @@ pub(super) fn bake(
     color: &mut image::Rgb32FImage,
     source: &[u8],
     slot: &[u32],
-    low: &[[f32; 3]],
+    low: &LowBand,
     patches: &[Patch],
     face_patches: &[Vec<u32>],
     sources: &[Source],
@@ -550,7 +673,7 @@ pub(super) fn bake(
                     + normals[fv[1].idx()] * b[1]
                     + normals[fv[2].idx()] * b[2])
                     .normalize();
-                let base = at_bary(low, &fv, &b);
+                let base = low.at(f, &fv, &b);
                 near.clear();
                 let mut src_id = u32::MAX;
                 let mut heaviest = (0f32, u32::MAX);
@@ -596,4 +719,94 @@ pub(super) fn bake(
         all.append(&mut list);
     }
     (written, bare, all)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::atlas::{build, AtlasOptions};
+    use crate::mesh::VertexId;
+
+    /// A strip folded along x = 0 by `angle` degrees: a flat part (z = 0, x from -2 to 0) and
+    /// a part turned down from the fold, both two units of squares wide in y.
+    fn folded(angle: f64) -> Mesh {
+        let (s, c) = angle.to_radians().sin_cos();
+        let mut m = Mesh::default();
+        // Columns of two vertices (y = 0, 1): x = -2, -1, 0, then one and two units down
+        // the turned part.
+        for t in [-2.0, -1.0, 0.0, 1.0, 2.0] {
+            for y in [0.0, 1.0] {
+                let p = if t <= 0.0 {
+                    Point3::new(t, y, 0.0)
+                } else {
+                    Point3::new(t * c, y, -t * s)
+                };
+                m.positions.push(p);
+            }
+        }
+        for col in 0..4u32 {
+            let (a, b, cc, d) = (2 * col, 2 * col + 2, 2 * col + 3, 2 * col + 1);
+            m.faces.push([VertexId(a), VertexId(b), VertexId(cc)]);
+            m.faces.push([VertexId(a), VertexId(cc), VertexId(d)]);
+        }
+        m
+    }
+
+    /// The flat part's two squares nearest the fold are the region; the other flat square
+    /// is photographed white, the turned part black, the fill grey. Folded at 90 degrees
+    /// the region's corners on the fold belong with the flat side and come out white (the
+    /// black across the crease stays on its side); folded at 20 degrees (no crease) they
+    /// are fixed to the mean of the faces around the vertex, black ones included.
+    #[test]
+    fn a_crease_keeps_each_sides_colour() {
+        for (angle, crease) in [(90.0, true), (20.0, false)] {
+            let opts = AtlasOptions {
+                pack: crate::atlas::pack::PackOptions {
+                    size: 256,
+                    gutter: 4,
+                    ..Default::default()
+                },
+                ..Default::default()
+            };
+            let (mesh, atlas, _) = build(folded(angle), &opts).unwrap();
+            let centre = |f: usize| {
+                let t = mesh.triangle(FaceId(f as u32));
+                (t[0].coords + t[1].coords + t[2].coords) / 3.0
+            };
+            let flat = |f: usize| centre(f).z.abs() < 1e-9 && centre(f).x < 0.0;
+            let member: Vec<bool> = (0..mesh.num_faces())
+                .map(|f| flat(f) && centre(f).x > -1.0)
+                .collect();
+            assert_eq!(member.iter().filter(|&&m| m).count(), 2);
+            let n = atlas.size as usize;
+            let color = image::Rgb32FImage::from_fn(n as u32, n as u32, |x, y| {
+                let v = match atlas.owner(y as usize * n + x as usize) {
+                    Some(f) if flat(f as usize) => 1.0,
+                    _ => 0.0,
+                };
+                image::Rgb([v; 3])
+            });
+            let adj = crate::mesh::topology::face_adjacency(&mesh);
+            let init = vec![[0.5f32; 3]; mesh.num_vertices()];
+            let low = low_band(&mesh, &atlas, &color, &member, &adj, &init);
+            for f in (0..mesh.num_faces()).filter(|&f| member[f]) {
+                let fv = mesh.faces[f];
+                for (k, v) in fv.iter().enumerate() {
+                    if mesh.positions[v.idx()].x.abs() > 1e-9 {
+                        continue;
+                    }
+                    let mut b = [0.0; 3];
+                    b[k] = 1.0;
+                    let at = low.at(f as u32, &fv, &b)[0];
+                    if crease {
+                        assert!(at > 0.95, "{angle} degrees: {at}");
+                        assert!(low.fixed_corner(f as u32, k).is_none());
+                    } else {
+                        assert!(at < 0.75, "{angle} degrees: {at}");
+                        assert!(low.fixed_corner(f as u32, k).is_some());
+                    }
+                }
+            }
+        }
+    }
 }
