@@ -239,7 +239,7 @@ fn rim_detail(
     atlas: &Atlas,
     res: &Resampled,
     texels: &[(usize, u32)],
-    low: &surface::LowBand,
+    low: &surface::LowBand<'_>,
     src: &Source,
 ) -> Vec<(nalgebra::Point3<f64>, [f32; 3])> {
     let n = atlas.size as usize;
@@ -297,8 +297,8 @@ fn detail(texels: &[[f32; 3]], w: usize, h: usize, sigma: f64) -> Vec<[f32; 3]> 
 /// Stage 6: fills the unseen texels of every region in `left` (low band plus exemplar
 /// detail), then extends the charts into the gutter again. `photos` are the registered
 /// photographs, indexed as `res.best_photo` (how sharply each crop was seen decides which can
-/// serve as exemplars); `up` orients the patches (the photographs' mean up); `user` is the user's exemplar image when
-/// [`ExemplarSource::File`] is chosen (read by the caller).
+/// serve as exemplars); `up` orients the patches (the photographs' mean up); `user` is the
+/// user's exemplar image when [`ExemplarSource::File`] is chosen (read by the caller).
 #[allow(clippy::too_many_arguments)]
 pub fn synthesize(
     mesh: &Mesh,

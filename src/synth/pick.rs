@@ -71,6 +71,23 @@ fn pixels_per_texel(eye: &Eye, p: &Point3<f64>, n: &Vector3<f64>, tpu: f64) -> f
     eye.focal * cos / (cam.z * tpu)
 }
 
+/// [`pixels_per_texel`] for texel-owning face at `mid` (unit normal `n`, tangent-to-texel
+/// map `fm`) as photograph `best` (an index of `eyes`, or [`NO_PHOTO`]: 0) saw it.
+fn seen_sharpness(
+    eyes: &[Eye],
+    best: u16,
+    mid: &Point3<f64>,
+    n: &Vector3<f64>,
+    fm: &Matrix2<f64>,
+) -> f64 {
+    match eyes.get(best as usize) {
+        Some(eye) if best != NO_PHOTO => {
+            pixels_per_texel(eye, mid, n, fm.determinant().abs().sqrt())
+        }
+        _ => 0.0,
+    }
+}
+
 /// The map from face `f`'s tangent offsets (right, up) to texels.
 pub(super) fn face_map(
     mesh: &Mesh,
@@ -179,16 +196,7 @@ pub(super) fn candidates(
                     centre += mid.coords;
                     let fm = face_map(mesh, atlas, f, up)?;
                     m += fm;
-                    let best = res.best_photo[i];
-                    let px = match eyes.get(best as usize) {
-                        Some(eye) if best != NO_PHOTO => pixels_per_texel(
-                            eye,
-                            &mid,
-                            &nrm.normalize(),
-                            fm.determinant().abs().sqrt(),
-                        ),
-                        _ => 0.0,
-                    };
+                    let px = seen_sharpness(eyes, res.best_photo[i], &mid, &nrm.normalize(), &fm);
                     sharpness = sharpness.min(px);
                     let (xa, xb) = (x.max(x0 + lag) - lag, (x + lag).min(x0 + size - 1));
                     let (ya, yb) = (y.max(y0 + lag) - lag, (y + lag).min(y0 + size - 1));
@@ -283,15 +291,8 @@ pub(super) fn sharp_texels(
                     let tri = mesh.triangle(FaceId(f));
                     let mid = Point3::from((tri[0].coords + tri[1].coords + tri[2].coords) / 3.0);
                     let n = mesh.face_normal_area(FaceId(f)).normalize();
-                    let px = match (
-                        eyes.get(best as usize),
-                        face_map(mesh, atlas, f as usize, up),
-                    ) {
-                        (Some(eye), Some(fm)) if best != NO_PHOTO => {
-                            pixels_per_texel(eye, &mid, &n, fm.determinant().abs().sqrt())
-                        }
-                        _ => 0.0,
-                    };
+                    let px = face_map(mesh, atlas, f as usize, up)
+                        .map_or(0.0, |fm| seen_sharpness(eyes, best, &mid, &n, &fm));
                     memo = Some((f, best, px));
                     px
                 }

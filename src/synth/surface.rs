@@ -83,9 +83,9 @@ pub(super) const CREASE_COS: f64 = 0.866_025_403_784_439;
 
 /// The low band over the regions, per face corner: corners of a vertex on one side of a
 /// crease share a value, so a vertex where a cut face meets a skin carries both colours.
-pub(super) struct LowBand {
+pub(super) struct LowBand<'a> {
     /// Per vertex: the value of faces the regions do not touch (the vertex-colour fill).
-    vertex: Vec<[f32; 3]>,
+    vertex: &'a [[f32; 3]],
     /// Face -> its index in `corners` (`u32::MAX`: not a region face or next to one).
     face: Vec<u32>,
     /// Per region face or face next to one: the band at its three corners.
@@ -94,11 +94,11 @@ pub(super) struct LowBand {
     fixed: Vec<u8>,
 }
 
-impl LowBand {
+impl LowBand<'_> {
     /// The band in face `f` (corners `fv`) at barycentrics `b`.
     pub(super) fn at(&self, f: u32, fv: &[crate::mesh::VertexId; 3], b: &[f64; 3]) -> [f32; 3] {
         match self.face[f as usize] {
-            u32::MAX => at_bary(&self.vertex, fv, b),
+            u32::MAX => at_bary(self.vertex, fv, b),
             i => {
                 let c = &self.corners[i as usize];
                 std::array::from_fn(|k| {
@@ -124,14 +124,14 @@ impl LowBand {
 /// on the same side of any crease ([`CREASE_COS`]). Corners of a vertex joined through
 /// smooth edges share one value; a region with no rim keeps `init` (a small pull towards no
 /// correction keeps the system definite). `adj` is the face adjacency.
-pub(super) fn low_band(
+pub(super) fn low_band<'a>(
     mesh: &Mesh,
     atlas: &Atlas,
     color: &image::Rgb32FImage,
     member: &[bool],
     adj: &[[u32; 3]],
-    init: &[[f32; 3]],
-) -> LowBand {
+    init: &'a [[f32; 3]],
+) -> LowBand<'a> {
     let nv = mesh.num_vertices();
     let nf = mesh.num_faces();
     let mut in_region = vec![false; nv];
@@ -278,7 +278,7 @@ pub(super) fn low_band(
         })
         .collect();
     LowBand {
-        vertex: init.to_vec(),
+        vertex: init,
         face,
         corners,
         fixed: fixed_bits,
@@ -637,7 +637,7 @@ pub(super) fn bake(
     color: &mut image::Rgb32FImage,
     source: &[u8],
     slot: &[u32],
-    low: &LowBand,
+    low: &LowBand<'_>,
     patches: &[Patch],
     face_patches: &[Vec<u32>],
     sources: &[Source],
