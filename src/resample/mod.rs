@@ -457,6 +457,22 @@ mod tests {
     use crate::bind::ViewSample;
     use crate::mesh::VertexId;
 
+    /// A sample reads the mask where its bilinear taps do: one background pixel among the
+    /// four taps rejects it, even when the pixel it falls in is the object's.
+    #[test]
+    fn a_sample_holds_only_if_all_its_taps_are_object() {
+        // Object on columns 0..5, background from column 5; 8 x 4 pixels.
+        let m = image::GrayImage::from_fn(8, 4, |x, _| image::Luma([if x < 5 { 255 } else { 0 }]));
+        let taps = sampler::tap_mask(&m);
+        let at = |x: f64, y: f64| sampler::mask_holds(&taps, &nalgebra::Point2::new(x, y));
+        // Pixel 4's left half reads pixels 3 and 4; its right half reads pixel 5 too (the
+        // old test, the pixel the sample falls in, kept it).
+        assert!(at(4.4, 2.0));
+        assert!(!at(4.6, 2.0));
+        assert!(at(0.2, 0.2), "edge pixels clamp");
+        assert!(!at(-0.1, 1.0) && !at(1.0, 4.0), "outside the image");
+    }
+
     /// A strip of 2n triangles over vertices 0..2n+2 (two rows).
     fn strip(n: u32) -> Mesh {
         let mut m = Mesh::default();

@@ -123,6 +123,45 @@ impl<'a> PhotoPyramid<'a> {
     }
 }
 
+/// The object mask as the bilinear sample sees it: a pixel is object (255) where it and its
+/// right, lower and lower-right neighbours (clamped at the image's edge) all are, i.e. where a
+/// sample whose first tap it is reads no background. A sample that reads one background
+/// pixel carries background colour, which at a grazing angle, where a pixel spans several
+/// texels, shows as bright streaks along the object's outline. Built once per photograph so
+/// that the texel loop looks up one byte.
+pub(super) fn tap_mask(m: &GrayImage) -> GrayImage {
+    let (w, h) = (m.width() as usize, m.height() as usize);
+    let src = m.as_raw();
+    let mut out = vec![0u8; w * h];
+    out.par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(y, row)| {
+            let (a, b) = (
+                &src[y * w..(y + 1) * w],
+                &src[(y + 1).min(h - 1) * w..][..w],
+            );
+            for x in 0..w {
+                let x1 = (x + 1).min(w - 1);
+                let object = a[x] >= 128 && a[x1] >= 128 && b[x] >= 128 && b[x1] >= 128;
+                row[x] = if object { 255 } else { 0 };
+            }
+        });
+    GrayImage::from_raw(m.width(), m.height(), out).expect("sized w*h")
+}
+
+/// Whether the bilinear sample at `px` (pixel centres at +0.5) reads object pixels only,
+/// given the photograph's [`tap_mask`] `taps`. (At the image's left and top edge, where the
+/// first tap is clamped, it reads one pixel more than the sample: conservative.)
+pub(super) fn mask_holds(taps: &GrayImage, px: &Point2<f64>) -> bool {
+    let (w, h) = (taps.width() as f64, taps.height() as f64);
+    if !(px.x >= 0.0 && px.y >= 0.0 && px.x < w && px.y < h) {
+        return false;
+    }
+    let x0 = (px.x - 0.5).floor().max(0.0) as usize;
+    let y0 = (px.y - 0.5).floor().max(0.0) as usize;
+    taps.as_raw()[y0 * taps.width() as usize + x0] >= 128
+}
+
 /// Largest pixel extent of a triangle resampled through an affine texel -> pixel map.
 pub(super) const AFFINE_PX: f64 = 8.0;
 
@@ -212,7 +251,8 @@ pub struct PhotoSampler<'a> {
     /// Bit per face: whether the face samples this photograph ([`Sampler::samples`]).
     pub(super) sampled: Vec<u64>,
     pub(super) pyramid: PhotoPyramid<'a>,
-    pub(super) mask: Option<&'a GrayImage>,
+    /// The object mask's [`tap_mask`], if the photograph has a mask.
+    pub(super) taps: Option<GrayImage>,
     pub(super) centre: Point3<f64>,
     pub(super) focal: f64,
 }
@@ -398,7 +438,7 @@ impl<'a> Sampler<'a> {
                 base: rgb,
                 levels: setup.levels,
             },
-            mask,
+            taps: mask.map(tap_mask),
             centre: view.pose.center(),
             focal: focal_px(view),
         }
@@ -496,9 +536,8 @@ impl<'a> Sampler<'a> {
                     }
                     // Masks decide per texel too: a face seen at one vertex may leave the
                     // object's outline elsewhere.
-                    if let Some(m) = ph.mask {
-                        let (mx, my) = (px.x as u32, px.y as u32);
-                        if mx >= m.width() || my >= m.height() || m.get_pixel(mx, my)[0] < 128 {
+                    if let Some(m) = &ph.taps {
+                        if !mask_holds(m, &px) {
                             continue;
                         }
                     }
