@@ -119,9 +119,9 @@ impl LowBand<'_> {
 
 /// The low band over the regions: the vertex-colour fill (`init`, which carries colour from
 /// the nearest photographed vertices) plus a harmonic correction (uniform weights, on the
-/// regions' faces) that makes it meet, at every region corner, the mean colour of the texels
-/// (as restored or photographed) of the faces outside the regions around that corner's vertex
-/// on the same side of any crease ([`CREASE_COS`]). Corners of a vertex joined through
+/// regions' faces) that makes it meet, at every region corner, the per-channel median colour
+/// of the texels (as restored or photographed) of the faces outside the regions around that
+/// corner's vertex on the same side of any crease ([`CREASE_COS`]). Corners of a vertex joined through
 /// smooth edges share one value; a region with no rim keeps `init` (a small pull towards no
 /// correction keeps the system definite). `adj` is the face adjacency.
 pub(super) fn low_band<'a>(
@@ -199,42 +199,44 @@ pub(super) fn low_band<'a>(
             }
         }
     }
-    // Rim faces' texel sums fix the region groups they touch.
-    let mut sums = vec![[0f64; 4]; involved.len()];
+    // Rim faces' texels fix the region groups they touch, at their per-channel median: the
+    // rim often runs along a thin dark trim or seam line, which a mean would carry into the
+    // whole region (see docs/decisions.md, "The rim's median").
     let data: &[f32] = color.as_raw();
-    for i in 0..atlas.size as usize * atlas.size as usize {
-        if let Some(f) = atlas.owner(i) {
-            let s = face[f as usize];
-            if s != u32::MAX && !member[f as usize] {
-                let acc = &mut sums[s as usize];
-                for k in 0..3 {
-                    acc[k] += data[i * 3 + k] as f64;
-                }
-                acc[3] += 1.0;
-            }
-        }
-    }
-    let mut fixed_sum = vec![[0f64; 4]; ng];
+    let texels = rim_texels(atlas, data, &face, member, involved.len());
+    let mut pairs: Vec<(u32, u32)> = Vec::new();
     for (i, &f) in involved.iter().enumerate() {
-        if member[f as usize] || sums[i][3] == 0.0 {
+        if member[f as usize] || texels.0[i] == texels.0[i + 1] {
             continue;
         }
         for k in 0..3 {
-            let g = group[3 * i + k] as usize;
-            if group_in_region[g] {
-                for c in 0..4 {
-                    fixed_sum[g][c] += sums[i][c];
-                }
+            let g = group[3 * i + k];
+            if group_in_region[g as usize] {
+                pairs.push((g, i as u32));
             }
         }
     }
-    let fixed: Vec<bool> = (0..ng).map(|g| fixed_sum[g][3] > 0.0).collect();
+    pairs.sort_unstable();
+    pairs.dedup();
+    let runs: Vec<&[(u32, u32)]> = pairs.chunk_by(|a, b| a.0 == b.0).collect();
+    let medians: Vec<(u32, [f32; 3])> = runs
+        .par_iter()
+        .map_init(Vec::new, |scratch: &mut Vec<[f32; 3]>, run| {
+            scratch.clear();
+            for &(_, i) in run.iter() {
+                let (a, b) = (texels.0[i as usize], texels.0[i as usize + 1]);
+                scratch.extend_from_slice(&texels.1[a as usize..b as usize]);
+            }
+            (run[0].0, median3(scratch))
+        })
+        .collect();
+    drop(texels);
+    let mut fixed = vec![false; ng];
     let init_g: Vec<[f32; 3]> = group_vertex.iter().map(|&v| init[v as usize]).collect();
     let mut out: Vec<[f32; 3]> = init_g.clone();
-    for g in 0..ng {
-        if fixed[g] {
-            out[g] = std::array::from_fn(|k| (fixed_sum[g][k] / fixed_sum[g][3]) as f32);
-        }
+    for (g, m) in medians {
+        fixed[g as usize] = true;
+        out[g as usize] = m;
     }
     // Unknowns and their neighbours through region faces.
     let mut unknown = vec![u32::MAX; ng];
@@ -283,6 +285,51 @@ pub(super) fn low_band<'a>(
         corners,
         fixed: fixed_bits,
     }
+}
+
+/// The texels of the rim faces (involved, outside the regions: `face` numbers the involved
+/// faces), grouped by face in compressed rows: (offsets, colours).
+fn rim_texels(
+    atlas: &Atlas,
+    data: &[f32],
+    face: &[u32],
+    member: &[bool],
+    involved: usize,
+) -> (Vec<u32>, Vec<[f32; 3]>) {
+    let n = atlas.size as usize * atlas.size as usize;
+    let mut offsets = vec![0u32; involved + 1];
+    let slot = |i: usize| -> Option<u32> {
+        let f = atlas.owner(i)?;
+        let s = face[f as usize];
+        (s != u32::MAX && !member[f as usize]).then_some(s)
+    };
+    for i in 0..n {
+        if let Some(s) = slot(i) {
+            offsets[s as usize + 1] += 1;
+        }
+    }
+    for i in 0..involved {
+        offsets[i + 1] += offsets[i];
+    }
+    let mut next = offsets.clone();
+    let mut colours = vec![[0f32; 3]; offsets[involved] as usize];
+    for i in 0..n {
+        if let Some(s) = slot(i) {
+            let at = &mut next[s as usize];
+            colours[*at as usize] = [data[i * 3], data[i * 3 + 1], data[i * 3 + 2]];
+            *at += 1;
+        }
+    }
+    (offsets, colours)
+}
+
+/// Per-channel median of `v` (upper median; reorders `v`).
+fn median3(v: &mut [[f32; 3]]) -> [f32; 3] {
+    let m = v.len() / 2;
+    std::array::from_fn(|k| {
+        v.select_nth_unstable_by(m, |a, b| a[k].total_cmp(&b[k]));
+        v[m][k]
+    })
 }
 
 /// The harmonic correction of the unknowns (`vars`, numbered by `unknown`) towards the fixed
@@ -756,19 +803,52 @@ mod tests {
     /// is photographed white, the turned part black, the fill grey. Folded at 90 degrees
     /// the region's corners on the fold belong with the flat side and come out white (the
     /// black across the crease stays on its side); folded at 20 degrees (no crease) they
-    /// are fixed to the mean of the faces around the vertex, black ones included.
+    /// are fixed to the median of the faces around the vertex, black ones included.
+    /// Options for one 256-texel page with a 4-texel gutter.
+    fn page_256() -> AtlasOptions {
+        AtlasOptions {
+            pack: crate::atlas::pack::PackOptions {
+                size: 256,
+                gutter: 4,
+                ..Default::default()
+            },
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn thin_dark_lines_on_the_rim_do_not_darken_the_band() {
+        let (mesh, atlas, _) = build(folded(20.0), &page_256()).unwrap();
+        let centre = |f: usize| {
+            let t = mesh.triangle(FaceId(f as u32));
+            (t[0].coords + t[1].coords + t[2].coords) / 3.0
+        };
+        let member: Vec<bool> = (0..mesh.num_faces())
+            .map(|f| centre(f).z.abs() < 1e-9 && centre(f).x < 0.0 && centre(f).x > -1.0)
+            .collect();
+        // White with every eighth texel column black: a mean of 0.875 around each corner.
+        let n = atlas.size;
+        let color =
+            image::Rgb32FImage::from_fn(n, n, |x, _| image::Rgb([(x % 8 != 0) as u8 as f32; 3]));
+        let adj = crate::mesh::topology::face_adjacency(&mesh);
+        let init = vec![[0.5f32; 3]; mesh.num_vertices()];
+        let low = low_band(&mesh, &atlas, &color, &member, &adj, &init);
+        let mut fixed = 0;
+        for f in (0..mesh.num_faces()).filter(|&f| member[f]) {
+            for k in 0..3 {
+                if let Some(c) = low.fixed_corner(f as u32, k) {
+                    assert_eq!(c, [1.0; 3], "face {f} corner {k}");
+                    fixed += 1;
+                }
+            }
+        }
+        assert!(fixed > 0);
+    }
+
     #[test]
     fn a_crease_keeps_each_sides_colour() {
         for (angle, crease) in [(90.0, true), (20.0, false)] {
-            let opts = AtlasOptions {
-                pack: crate::atlas::pack::PackOptions {
-                    size: 256,
-                    gutter: 4,
-                    ..Default::default()
-                },
-                ..Default::default()
-            };
-            let (mesh, atlas, _) = build(folded(angle), &opts).unwrap();
+            let (mesh, atlas, _) = build(folded(angle), &page_256()).unwrap();
             let centre = |f: usize| {
                 let t = mesh.triangle(FaceId(f as u32));
                 (t[0].coords + t[1].coords + t[2].coords) / 3.0
