@@ -41,13 +41,20 @@ pub struct ImageScore {
     pub unseen: Option<UnseenScore>,
 }
 
+/// A rendered pixel whose channels (in [0, 1], after gains) sum to at most this is black.
+pub const BLACK_SUM: f64 = 0.02;
+/// A truth pixel whose channels sum to at most this is black too (JPEG noise included), so
+/// that a black rendered pixel there is not a hole.
+pub const BLACK_TRUTH_SUM: f64 = 0.06;
+
 /// How a texture does where no input photograph saw the surface, against the truth (the
 /// held-out photograph), after per-channel gains fitted on the seen pixels.
 #[derive(Debug, Clone, Copy, Serialize, PartialEq)]
 pub struct UnseenScore {
     /// Unseen pixels (inside the object's footprint).
     pub pixels: usize,
-    /// Fraction of them the texture covers with colour (rendered, not black).
+    /// Fraction of them the texture covers with colour (rendered, and not black where the
+    /// truth is not black within one pixel: [`BLACK_SUM`], [`BLACK_TRUTH_SUM`]).
     pub coverage: f64,
     /// RMS of the output's detail (luma minus its Gaussian blur, sigma 1.5) over the truth's,
     /// on the unseen pixels 2 pixels in from their border: 0 for a flat fill, 1 for detail of
@@ -271,8 +278,27 @@ pub fn unseen_score(
         let p = img.get_pixel((i % w) as u32, (i / w) as u32);
         [p[0] as f64, p[1] as f64, p[2] as f64]
     };
+    // A black pixel is a hole (a peer's black fill, an untextured face) unless the truth is
+    // black there too, or one pixel away: a scan's black trim or lacing, reproduced, is not
+    // missing colour.
+    let black = |img: &Rgb32FImage, i: usize, at: f64| colour(img, i).iter().sum::<f64>() <= at;
+    let truth_black_near = |i: usize| {
+        let (x, y) = ((i % w) as i64, (i / w) as i64);
+        (-1..=1).any(|dy| {
+            (-1..=1).any(|dx| {
+                let (u, v) = (x + dx, y + dy);
+                u >= 0
+                    && v >= 0
+                    && (u as usize) < w
+                    && (v as usize) < h
+                    && black(photo, v as usize * w + u as usize, BLACK_TRUTH_SUM)
+            })
+        })
+    };
     let cov = (0..w * h)
-        .filter(|&i| unseen[i] && covered[i] && colour(rendered, i).iter().sum::<f64>() > 0.02)
+        .filter(|&i| {
+            unseen[i] && covered[i] && (!black(rendered, i, BLACK_SUM) || truth_black_near(i))
+        })
         .count();
     let inner = erode(unseen, w, h, 2);
     let inner_n = inner.iter().filter(|&&v| v).count().max(1);
@@ -673,6 +699,18 @@ mod tests {
         let black = Rgb32FImage::new(w, h);
         let b = unseen_score(&black, &truth, &unseen, &seen, &covered).unwrap();
         assert_eq!(b.coverage, 0.0);
+        // Black where the truth is black too is covered: the unseen half's top rows made
+        // black in the truth, then rendered black.
+        let dark = Rgb32FImage::from_fn(w, h, |x, y| {
+            if x >= 32 && y < 12 {
+                image::Rgb([0.01, 0.01, 0.01])
+            } else {
+                *truth.get_pixel(x, y)
+            }
+        });
+        let d = unseen_score(&black, &dark, &unseen, &seen, &covered).unwrap();
+        // (Row 12, one pixel from the black, counts too.)
+        assert!((d.coverage - 13.0 / 48.0).abs() < 1e-12, "{d:?}");
         assert!(unseen_score(&truth, &truth, &vec![false; n], &seen, &covered).is_none());
     }
 }
