@@ -326,6 +326,18 @@ impl Atlas {
     pub fn face_rect(&self, f: usize) -> Option<((usize, usize), (usize, usize))> {
         self.texels.faces[f].as_ref().map(|r| (r.rows, r.cols))
     }
+
+    /// The texels face `f` owns (row-major indices, in row order); none if it is not on the
+    /// page.
+    pub fn owned_texels(&self, f: usize) -> impl Iterator<Item = usize> + '_ {
+        let n = self.size as usize;
+        let rect = self.face_rect(f);
+        rect.into_iter()
+            .flat_map(move |((r0, r1), (c0, c1))| {
+                (r0..=r1).flat_map(move |y| (c0..=c1).map(move |x| y * n + x))
+            })
+            .filter(move |&i| self.owner(i) == Some(f as u32))
+    }
 }
 
 /// Options for [`parameterize`].

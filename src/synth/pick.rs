@@ -328,22 +328,11 @@ pub(super) fn photographed_texels(
     source: &[u8],
     faces: &[u32],
 ) -> Vec<(usize, u32)> {
-    let n = atlas.size as usize;
-    let mut out = Vec::new();
-    for &f in faces {
-        let Some(((r0, r1), (c0, c1))) = atlas.face_rect(f as usize) else {
-            continue;
-        };
-        for y in r0..=r1 {
-            for x in c0..=c1 {
-                let i = y * n + x;
-                if atlas.owner(i) == Some(f) && source[i] == TexelSource::Photos as u8 {
-                    out.push((i, f));
-                }
-            }
-        }
-    }
-    out
+    faces
+        .iter()
+        .flat_map(|&f| atlas.owned_texels(f as usize).map(move |i| (i, f)))
+        .filter(|&(i, _)| source[i] == TexelSource::Photos as u8)
+        .collect()
 }
 
 /// Detail energy (as [`Candidate::detail`]) of `texels` (from [`photographed_texels`]).

@@ -121,8 +121,8 @@ impl LowBand<'_> {
 /// the nearest photographed vertices) plus a harmonic correction (uniform weights, on the
 /// regions' faces) that makes it meet, at every region corner, the per-channel median colour
 /// of the texels (as restored or photographed) of the faces outside the regions around that
-/// corner's vertex on the same side of any crease ([`CREASE_COS`]). Corners of a vertex joined through
-/// smooth edges share one value; a region with no rim keeps `init` (a small pull towards no
+/// corner's vertex on the same side of any crease ([`CREASE_COS`]). Corners of a vertex
+/// joined through smooth edges share one value; a region with no rim keeps `init` (a small pull towards no
 /// correction keeps the system definite). `adj` is the face adjacency.
 pub(super) fn low_band<'a>(
     mesh: &Mesh,
@@ -203,7 +203,7 @@ pub(super) fn low_band<'a>(
     // rim often runs along a thin dark trim or seam line, which a mean would carry into the
     // whole region (see docs/decisions.md, "The rim's median").
     let data: &[f32] = color.as_raw();
-    let texels = rim_texels(atlas, data, &face, member, involved.len());
+    let texels = rim_texels(atlas, data, &involved, member);
     let mut pairs: Vec<(u32, u32)> = Vec::new();
     for (i, &f) in involved.iter().enumerate() {
         if member[f as usize] || texels.0[i] == texels.0[i + 1] {
@@ -287,40 +287,32 @@ pub(super) fn low_band<'a>(
     }
 }
 
-/// The texels of the rim faces (involved, outside the regions: `face` numbers the involved
-/// faces), grouped by face in compressed rows: (offsets, colours).
+/// The texels of the rim faces (the `involved` faces outside the regions), grouped by face
+/// in compressed rows: (offsets, colours); the regions' own faces get empty rows.
 fn rim_texels(
     atlas: &Atlas,
     data: &[f32],
-    face: &[u32],
+    involved: &[u32],
     member: &[bool],
-    involved: usize,
 ) -> (Vec<u32>, Vec<[f32; 3]>) {
-    let n = atlas.size as usize * atlas.size as usize;
-    let mut offsets = vec![0u32; involved + 1];
-    let slot = |i: usize| -> Option<u32> {
-        let f = atlas.owner(i)?;
-        let s = face[f as usize];
-        (s != u32::MAX && !member[f as usize]).then_some(s)
-    };
-    for i in 0..n {
-        if let Some(s) = slot(i) {
-            offsets[s as usize + 1] += 1;
-        }
+    let per_face: Vec<Vec<[f32; 3]>> = involved
+        .par_iter()
+        .map(|&f| {
+            if member[f as usize] {
+                return Vec::new();
+            }
+            atlas
+                .owned_texels(f as usize)
+                .map(|i| [data[i * 3], data[i * 3 + 1], data[i * 3 + 2]])
+                .collect()
+        })
+        .collect();
+    let mut offsets = Vec::with_capacity(involved.len() + 1);
+    offsets.push(0u32);
+    for t in &per_face {
+        offsets.push(offsets[offsets.len() - 1] + t.len() as u32);
     }
-    for i in 0..involved {
-        offsets[i + 1] += offsets[i];
-    }
-    let mut next = offsets.clone();
-    let mut colours = vec![[0f32; 3]; offsets[involved] as usize];
-    for i in 0..n {
-        if let Some(s) = slot(i) {
-            let at = &mut next[s as usize];
-            colours[*at as usize] = [data[i * 3], data[i * 3 + 1], data[i * 3 + 2]];
-            *at += 1;
-        }
-    }
-    (offsets, colours)
+    (offsets, per_face.concat())
 }
 
 /// Per-channel median of `v` (upper median; reorders `v`).
@@ -799,11 +791,6 @@ mod tests {
         m
     }
 
-    /// The flat part's two squares nearest the fold are the region; the other flat square
-    /// is photographed white, the turned part black, the fill grey. Folded at 90 degrees
-    /// the region's corners on the fold belong with the flat side and come out white (the
-    /// black across the crease stays on its side); folded at 20 degrees (no crease) they
-    /// are fixed to the median of the faces around the vertex, black ones included.
     /// Options for one 256-texel page with a 4-texel gutter.
     fn page_256() -> AtlasOptions {
         AtlasOptions {
@@ -816,13 +803,18 @@ mod tests {
         }
     }
 
+    /// A face's centroid.
+    fn centre(mesh: &Mesh, f: usize) -> Vector3<f64> {
+        let t = mesh.triangle(FaceId(f as u32));
+        (t[0].coords + t[1].coords + t[2].coords) / 3.0
+    }
+
+    /// The region as below, folded at 20 degrees, every rim face white but for thin black
+    /// lines: the rim corners are fixed to white.
     #[test]
     fn thin_dark_lines_on_the_rim_do_not_darken_the_band() {
         let (mesh, atlas, _) = build(folded(20.0), &page_256()).unwrap();
-        let centre = |f: usize| {
-            let t = mesh.triangle(FaceId(f as u32));
-            (t[0].coords + t[1].coords + t[2].coords) / 3.0
-        };
+        let centre = |f: usize| centre(&mesh, f);
         let member: Vec<bool> = (0..mesh.num_faces())
             .map(|f| centre(f).z.abs() < 1e-9 && centre(f).x < 0.0 && centre(f).x > -1.0)
             .collect();
@@ -845,14 +837,16 @@ mod tests {
         assert!(fixed > 0);
     }
 
+    /// The flat part's two squares nearest the fold are the region; the other flat square
+    /// is photographed white, the turned part black, the fill grey. Folded at 90 degrees
+    /// the region's corners on the fold belong with the flat side and come out white (the
+    /// black across the crease stays on its side); folded at 20 degrees (no crease) they
+    /// are fixed to the median of the faces around the vertex, black ones included.
     #[test]
     fn a_crease_keeps_each_sides_colour() {
         for (angle, crease) in [(90.0, true), (20.0, false)] {
             let (mesh, atlas, _) = build(folded(angle), &page_256()).unwrap();
-            let centre = |f: usize| {
-                let t = mesh.triangle(FaceId(f as u32));
-                (t[0].coords + t[1].coords + t[2].coords) / 3.0
-            };
+            let centre = |f: usize| centre(&mesh, f);
             let flat = |f: usize| centre(f).z.abs() < 1e-9 && centre(f).x < 0.0;
             let member: Vec<bool> = (0..mesh.num_faces())
                 .map(|f| flat(f) && centre(f).x > -1.0)
