@@ -358,7 +358,15 @@ pub fn synthesize(
     }
     let mut t = Instant::now();
     let adj = crate::mesh::topology::face_adjacency(mesh);
-    let low = surface::low_band(mesh, atlas, &res.color, &member, &adj, &res.vertex_colors);
+    let low = surface::low_band(
+        mesh,
+        atlas,
+        &res.color,
+        &res.source,
+        &member,
+        &adj,
+        &res.vertex_colors,
+    );
     report.seconds_low_band = t.elapsed().as_secs_f64();
     t = Instant::now();
     // Exemplars: the user's, or per region the atlas crop most like its rim.

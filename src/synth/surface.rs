@@ -120,14 +120,16 @@ impl LowBand<'_> {
 /// The low band over the regions: the vertex-colour fill (`init`, which carries colour from
 /// the nearest photographed vertices) plus a harmonic correction (uniform weights, on the
 /// regions' faces) that makes it meet, at every region corner, the per-channel median colour
-/// of the texels (as restored or photographed) of the faces outside the regions around that
-/// corner's vertex on the same side of any crease ([`CREASE_COS`]). Corners of a vertex
-/// joined through smooth edges share one value; a region with no rim keeps `init` (a small pull towards no
-/// correction keeps the system definite). `adj` is the face adjacency.
+/// of the texels around that corner's vertex on the same side of any crease
+/// ([`CREASE_COS`]): those of the faces outside the regions (as restored or photographed)
+/// and the photographed ones of the region faces (`source` says which). Corners of a vertex
+/// joined through smooth edges share one value; a region with no rim keeps `init` (a small
+/// pull towards no correction keeps the system definite). `adj` is the face adjacency.
 pub(super) fn low_band<'a>(
     mesh: &Mesh,
     atlas: &Atlas,
     color: &image::Rgb32FImage,
+    source: &[u8],
     member: &[bool],
     adj: &[[u32; 3]],
     init: &'a [[f32; 3]],
@@ -199,14 +201,15 @@ pub(super) fn low_band<'a>(
             }
         }
     }
-    // Rim faces' texels fix the region groups they touch, at their per-channel median: the
-    // rim often runs along a thin dark trim or seam line, which a mean would carry into the
-    // whole region (see docs/decisions.md, "The rim's median").
+    // Rim faces' texels (and region faces' photographed ones) fix the region groups they
+    // touch, at their per-channel median: the rim often runs along a thin dark trim or seam
+    // line, which a mean would carry into the whole region (see docs/decisions.md, "The
+    // rim's median").
     let data: &[f32] = color.as_raw();
-    let texels = rim_texels(atlas, data, &involved, member);
+    let texels = rim_texels(atlas, data, source, &involved, member);
     let mut pairs: Vec<(u32, u32)> = Vec::new();
-    for (i, &f) in involved.iter().enumerate() {
-        if member[f as usize] || texels.0[i] == texels.0[i + 1] {
+    for i in 0..involved.len() {
+        if texels.0[i] == texels.0[i + 1] {
             continue;
         }
         for k in 0..3 {
@@ -287,22 +290,26 @@ pub(super) fn low_band<'a>(
     }
 }
 
-/// The texels of the rim faces (the `involved` faces outside the regions), grouped by face
-/// in compressed rows: (offsets, colours); the regions' own faces get empty rows.
+/// The texels that describe the `involved` faces' colours, grouped by face in compressed
+/// rows (offsets, colours): all of a rim face's (outside the regions: photographed or
+/// restored), and the photographed ones of a region face. A region face of a coarse mesh is
+/// often mostly photographed, its few unseen texels the ones stage 6 writes; without them
+/// its corners took their colour from rim faces far across it (see docs/decisions.md, "A
+/// region face's own photographed texels").
 fn rim_texels(
     atlas: &Atlas,
     data: &[f32],
+    source: &[u8],
     involved: &[u32],
     member: &[bool],
 ) -> (Vec<u32>, Vec<[f32; 3]>) {
     let per_face: Vec<Vec<[f32; 3]>> = involved
         .par_iter()
         .map(|&f| {
-            if member[f as usize] {
-                return Vec::new();
-            }
+            let region = member[f as usize];
             atlas
                 .owned_texels(f as usize)
+                .filter(|&i| !region || source[i] == TexelSource::Photos as u8)
                 .map(|i| [data[i * 3], data[i * 3 + 1], data[i * 3 + 2]])
                 .collect()
         })
@@ -803,6 +810,18 @@ mod tests {
         }
     }
 
+    /// Texel sources: the regions' faces unseen (red), the others photographed.
+    fn sources(atlas: &Atlas, member: &[bool]) -> Vec<u8> {
+        let n = atlas.size as usize;
+        (0..n * n)
+            .map(|i| match atlas.owner(i) {
+                Some(f) if member[f as usize] => TexelSource::Red as u8,
+                Some(_) => TexelSource::Photos as u8,
+                None => TexelSource::Empty as u8,
+            })
+            .collect()
+    }
+
     /// A face's centroid.
     fn centre(mesh: &Mesh, f: usize) -> Vector3<f64> {
         let t = mesh.triangle(FaceId(f as u32));
@@ -824,7 +843,8 @@ mod tests {
             image::Rgb32FImage::from_fn(n, n, |x, _| image::Rgb([(x % 8 != 0) as u8 as f32; 3]));
         let adj = crate::mesh::topology::face_adjacency(&mesh);
         let init = vec![[0.5f32; 3]; mesh.num_vertices()];
-        let low = low_band(&mesh, &atlas, &color, &member, &adj, &init);
+        let source = sources(&atlas, &member);
+        let low = low_band(&mesh, &atlas, &color, &source, &member, &adj, &init);
         let mut fixed = 0;
         for f in (0..mesh.num_faces()).filter(|&f| member[f]) {
             for k in 0..3 {
@@ -835,6 +855,56 @@ mod tests {
             }
         }
         assert!(fixed > 0);
+    }
+
+    /// Every face is in the region, so there is no rim: with the faces photographed white but
+    /// for a few unseen texels (a coarse mesh's faces), every corner is fixed to white; with
+    /// all of their texels unseen, nothing is fixed and the band keeps the fill's grey.
+    #[test]
+    fn a_region_faces_photographed_texels_fix_its_corners() {
+        let (mesh, atlas, _) = build(folded(20.0), &page_256()).unwrap();
+        let member = vec![true; mesh.num_faces()];
+        let n = atlas.size as usize;
+        let adj = crate::mesh::topology::face_adjacency(&mesh);
+        let init = vec![[0.5f32; 3]; mesh.num_vertices()];
+        let unseen = sources(&atlas, &member);
+        // Photographed: every texel of the faces but every tenth they own.
+        let mut owned = 0;
+        let photographed: Vec<u8> = unseen
+            .iter()
+            .map(|&s| {
+                if s != TexelSource::Red as u8 {
+                    return s;
+                }
+                owned += 1;
+                if owned % 10 == 0 {
+                    s
+                } else {
+                    TexelSource::Photos as u8
+                }
+            })
+            .collect();
+        let color = image::Rgb32FImage::from_fn(n as u32, n as u32, |x, y| {
+            let i = y as usize * n + x as usize;
+            image::Rgb(
+                [if photographed[i] == TexelSource::Photos as u8 {
+                    1.0
+                } else {
+                    0.0
+                }; 3],
+            )
+        });
+        for (source, want) in [(&photographed, Some(1.0)), (&unseen, None)] {
+            let low = low_band(&mesh, &atlas, &color, source, &member, &adj, &init);
+            for (f, fv) in mesh.faces.iter().enumerate() {
+                for k in 0..3 {
+                    assert_eq!(low.fixed_corner(f as u32, k).map(|c| c[0]), want);
+                    let mut b = [0.0; 3];
+                    b[k] = 1.0;
+                    assert_eq!(low.at(f as u32, fv, &b)[0], want.unwrap_or(0.5));
+                }
+            }
+        }
     }
 
     /// The flat part's two squares nearest the fold are the region; the other flat square
@@ -862,7 +932,8 @@ mod tests {
             });
             let adj = crate::mesh::topology::face_adjacency(&mesh);
             let init = vec![[0.5f32; 3]; mesh.num_vertices()];
-            let low = low_band(&mesh, &atlas, &color, &member, &adj, &init);
+            let source = sources(&atlas, &member);
+            let low = low_band(&mesh, &atlas, &color, &source, &member, &adj, &init);
             for f in (0..mesh.num_faces()).filter(|&f| member[f]) {
                 let fv = mesh.faces[f];
                 for (k, v) in fv.iter().enumerate() {
