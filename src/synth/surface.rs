@@ -206,7 +206,7 @@ pub(super) fn low_band<'a>(
     // line, which a mean would carry into the whole region (see docs/decisions.md, "The
     // rim's median").
     let data: &[f32] = color.as_raw();
-    let texels = rim_texels(atlas, data, source, &involved, member);
+    let texels = corner_texels(atlas, data, source, &involved, member);
     let mut pairs: Vec<(u32, u32)> = Vec::new();
     for i in 0..involved.len() {
         if texels.0[i] == texels.0[i + 1] {
@@ -296,7 +296,7 @@ pub(super) fn low_band<'a>(
 /// often mostly photographed, its few unseen texels the ones stage 6 writes; without them
 /// its corners took their colour from rim faces far across it (see docs/decisions.md, "A
 /// region face's own photographed texels").
-fn rim_texels(
+fn corner_texels(
     atlas: &Atlas,
     data: &[f32],
     source: &[u8],
@@ -822,18 +822,12 @@ mod tests {
             .collect()
     }
 
-    /// A face's centroid.
-    fn centre(mesh: &Mesh, f: usize) -> Vector3<f64> {
-        let t = mesh.triangle(FaceId(f as u32));
-        (t[0].coords + t[1].coords + t[2].coords) / 3.0
-    }
-
     /// The region as below, folded at 20 degrees, every rim face white but for thin black
     /// lines: the rim corners are fixed to white.
     #[test]
     fn thin_dark_lines_on_the_rim_do_not_darken_the_band() {
         let (mesh, atlas, _) = build(folded(20.0), &page_256()).unwrap();
-        let centre = |f: usize| centre(&mesh, f);
+        let centre = |f: usize| centroid(&mesh, f as u32);
         let member: Vec<bool> = (0..mesh.num_faces())
             .map(|f| centre(f).z.abs() < 1e-9 && centre(f).x < 0.0 && centre(f).x > -1.0)
             .collect();
@@ -916,7 +910,7 @@ mod tests {
     fn a_crease_keeps_each_sides_colour() {
         for (angle, crease) in [(90.0, true), (20.0, false)] {
             let (mesh, atlas, _) = build(folded(angle), &page_256()).unwrap();
-            let centre = |f: usize| centre(&mesh, f);
+            let centre = |f: usize| centroid(&mesh, f as u32);
             let flat = |f: usize| centre(f).z.abs() < 1e-9 && centre(f).x < 0.0;
             let member: Vec<bool> = (0..mesh.num_faces())
                 .map(|f| flat(f) && centre(f).x > -1.0)
