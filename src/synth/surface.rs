@@ -675,6 +675,11 @@ pub(super) fn at_bary(v: &[[f32; 3]], fv: &[crate::mesh::VertexId; 3], b: &[f64;
 /// interpolated from the vertices plus the blended patch detail at the texel's surface point.
 /// Returns (texels written, texels with no patch weight: low band only) and, with
 /// `record`, the heaviest patch of each texel written (in texel order; `u32::MAX` for none).
+///
+/// Face by face: a texel's exemplar offset in a patch and the patch's facing there are affine
+/// in the texel's barycentrics (the surface point is), so each face maps its three corners
+/// into each of its patches once and its texels only interpolate (on the 1.17M-face scene the
+/// per-texel projections were most of this stage's time).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn bake(
     mesh: &Mesh,
@@ -691,80 +696,101 @@ pub(super) fn bake(
     record: bool,
 ) -> (u64, u64, Vec<(u32, u32)>) {
     let n = atlas.size as usize;
-    let data: &mut [f32] = color.as_mut();
-    // Per row: texels written, texels with the low band only, (texel, heaviest patch).
-    type Row = (u64, u64, Vec<(u32, u32)>);
-    let counts: Vec<Row> = data
-        .par_chunks_mut(n * 3)
-        .enumerate()
-        .map(|(y, row)| {
-            let (mut written, mut bare) = (0u64, 0u64);
-            let mut winners = Vec::new();
-            let mut near: Vec<(f32, [f32; 3])> = Vec::new();
-            for x in 0..n {
-                let i = y * n + x;
+    let inv_r2 = 1.0 / (radius * radius);
+    // One patch as seen from one face: the exemplar offsets and normal dots at its corners.
+    struct Corner {
+        off: [Vector2<f64>; 3],
+        dot: [f64; 3],
+        offset: [f64; 2],
+        source: u32,
+        patch: u32,
+    }
+    let faces: Vec<u32> = (0..mesh.num_faces() as u32)
+        .filter(|&f| slot[f as usize] != u32::MAX && atlas.face_rect(f as usize).is_some())
+        .collect();
+    // (texel, colour, heaviest patch, low band only) per texel written, a batch of faces at a
+    // time so that the colours held stay small.
+    type Out = (u32, [f32; 3], u32, bool);
+    let bake_faces = |group: &[u32]| -> Vec<Out> {
+        let mut out = Vec::new();
+        let mut near: Vec<(f32, [f32; 3])> = Vec::new();
+        let mut corners: Vec<Corner> = Vec::new();
+        for &f in group {
+            let fv = mesh.faces[f as usize];
+            let tri = mesh.triangle(FaceId(f));
+            let nrm = fv.map(|v| normals[v.idx()]);
+            corners.clear();
+            for &k in &face_patches[slot[f as usize] as usize] {
+                let q = &patches[k as usize];
+                let s = &sources[q.source as usize];
+                corners.push(Corner {
+                    off: std::array::from_fn(|c| s.m * q.coords(&tri[c])),
+                    dot: std::array::from_fn(|c| nrm[c].dot(&q.normal)),
+                    offset: q.offset,
+                    source: q.source,
+                    patch: k,
+                });
+            }
+            for i in atlas.owned_texels(f as usize) {
                 if !TexelSource::is_unseen(source[i]) {
                     continue;
                 }
-                let Some(f) = atlas.owner(i) else { continue };
-                let sl = slot[f as usize];
-                if sl == u32::MAX {
-                    continue;
-                }
-                let Some((b, p)) = texel_point(mesh, atlas, f, x, y) else {
+                let Some((b, _)) = texel_point(mesh, atlas, f, i % n, i / n) else {
                     continue;
                 };
-                let fv = mesh.faces[f as usize];
-                let np = (normals[fv[0].idx()] * b[0]
-                    + normals[fv[1].idx()] * b[1]
-                    + normals[fv[2].idx()] * b[2])
-                    .normalize();
+                let len = (nrm[0] * b[0] + nrm[1] * b[1] + nrm[2] * b[2]).norm();
                 let base = low.at(f, &fv, &b);
                 near.clear();
                 let mut src_id = u32::MAX;
                 let mut heaviest = (0f32, u32::MAX);
-                for &k in &face_patches[sl as usize] {
-                    let q = &patches[k as usize];
-                    let s = &sources[q.source as usize];
-                    let off = s.m * q.coords(&p);
+                for c in &corners {
+                    let off = c.off[0] * b[0] + c.off[1] * b[1] + c.off[2] * b[2];
                     // Weight falls with distance in the exemplar and with the angle between
                     // the surface and the patch plane (both continuous over the surface).
-                    let facing = ((np.dot(&q.normal) - 0.2) / 0.5).clamp(0.0, 1.0) as f32;
-                    let w = bump(off.norm() / radius) * facing;
+                    // (`bump` of the distance over the radius, from its square: no root.)
+                    let s = 1.0 - off.norm_squared() * inv_r2;
+                    if s <= 0.0 {
+                        continue;
+                    }
+                    let cos = (c.dot[0] * b[0] + c.dot[1] * b[1] + c.dot[2] * b[2]) / len;
+                    let facing = ((cos - 0.2) / 0.5).clamp(0.0, 1.0) as f32;
+                    let w = (s * s) as f32 * facing;
                     if w > 0.0 {
-                        near.push((w, s.ex.sample(q.offset[0] + off.x, q.offset[1] + off.y)));
-                        src_id = q.source;
+                        let s = &sources[c.source as usize];
+                        near.push((w, s.ex.sample(c.offset[0] + off.x, c.offset[1] + off.y)));
+                        src_id = c.source;
                         if w > heaviest.0 {
-                            heaviest = (w, k);
+                            heaviest = (w, c.patch);
                         }
                     }
                 }
-                let detail = match (blend(near.iter().copied()), src_id) {
-                    (Some(g), id) if id != u32::MAX => sources[id as usize].ex.colour(g),
-                    _ => {
-                        bare += 1;
-                        [0.0; 3]
-                    }
+                let (detail, bare) = match (blend(near.iter().copied()), src_id) {
+                    (Some(g), id) if id != u32::MAX => (sources[id as usize].ex.colour(g), false),
+                    _ => ([0.0; 3], true),
                 };
-                for k in 0..3 {
-                    row[x * 3 + k] = base[k] + detail[k];
-                }
-                written += 1;
-                if record {
-                    winners.push((i as u32, heaviest.1));
-                }
+                let c = std::array::from_fn(|k| base[k] + detail[k]);
+                out.push((i as u32, c, heaviest.1, bare));
             }
-            (written, bare, winners)
-        })
-        .collect();
-    let mut all = Vec::new();
-    let (mut written, mut bare) = (0, 0);
-    for (w, b, mut list) in counts {
-        written += w;
-        bare += b;
-        all.append(&mut list);
+        }
+        out
+    };
+    let data: &mut [f32] = color.as_mut();
+    let (mut written, mut bare) = (0u64, 0u64);
+    let mut winners = Vec::new();
+    const BATCH: usize = 16384;
+    for batch in faces.chunks(BATCH) {
+        let parts: Vec<Vec<Out>> = batch.par_chunks(64).map(bake_faces).collect();
+        for (i, c, heaviest, b) in parts.into_iter().flatten() {
+            data[3 * i as usize..3 * i as usize + 3].copy_from_slice(&c);
+            written += 1;
+            bare += u64::from(b);
+            if record {
+                winners.push((i, heaviest));
+            }
+        }
     }
-    (written, bare, all)
+    winners.sort_unstable();
+    (written, bare, winners)
 }
 
 #[cfg(test)]
