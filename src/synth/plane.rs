@@ -253,7 +253,13 @@ pub fn blend(samples: impl Iterator<Item = (f32, [f32; 3])>) -> Option<[f32; 3]>
 /// centre, 0 from the radius on.
 #[inline]
 pub fn bump(r: f64) -> f32 {
-    let s = 1.0 - r * r;
+    bump_squared(r * r)
+}
+
+/// [`bump`] from the square of its argument (no root where the squared distance is at hand).
+#[inline]
+pub fn bump_squared(r2: f64) -> f32 {
+    let s = 1.0 - r2;
     if s <= 0.0 {
         0.0
     } else {

@@ -6,7 +6,7 @@
 //! overlaps, evaluated at every texel's surface point: chart borders inside a region do not
 //! show, because both sides of a border are the same points of the surface.
 
-use super::plane::{blend, bump, choose_offset, Exemplar};
+use super::plane::{blend, bump, bump_squared, choose_offset, Exemplar};
 use crate::atlas::Atlas;
 use crate::mesh::topology::NO_FACE;
 use crate::mesh::{FaceId, Mesh};
@@ -644,8 +644,17 @@ pub(super) fn grow_patches(
     patches.len() - before
 }
 
-/// The surface point of texel (x, y) in face `f`: barycentrics clamped to the triangle (a
-/// texel a face owns may have its centre just outside it) and the point they give.
+/// Barycentrics of texel (x, y) in face `f`, clamped to the triangle (a texel a face owns may
+/// have its centre just outside it).
+fn texel_barycentric(atlas: &Atlas, f: u32, x: usize, y: usize) -> Option<[f64; 3]> {
+    let b = atlas.barycentric(f as usize, x, y)?;
+    let b = b.map(|v| v.clamp(0.0, 1.0));
+    let sum = b[0] + b[1] + b[2];
+    Some(b.map(|v| v / sum.max(1e-12)))
+}
+
+/// The surface point of texel (x, y) in face `f`: [`texel_barycentric`] and the point they
+/// give.
 pub(super) fn texel_point(
     mesh: &Mesh,
     atlas: &Atlas,
@@ -653,10 +662,7 @@ pub(super) fn texel_point(
     x: usize,
     y: usize,
 ) -> Option<([f64; 3], Point3<f64>)> {
-    let b = atlas.barycentric(f as usize, x, y)?;
-    let b = b.map(|v| v.clamp(0.0, 1.0));
-    let sum = b[0] + b[1] + b[2];
-    let b = b.map(|v| v / sum.max(1e-12));
+    let b = texel_barycentric(atlas, f, x, y)?;
     let tri = mesh.triangle(FaceId(f));
     let p = Point3::from(tri[0].coords * b[0] + tri[1].coords * b[1] + tri[2].coords * b[2]);
     Some((b, p))
@@ -735,7 +741,7 @@ pub(super) fn bake(
                 if !TexelSource::is_unseen(source[i]) {
                     continue;
                 }
-                let Some((b, _)) = texel_point(mesh, atlas, f, i % n, i / n) else {
+                let Some(b) = texel_barycentric(atlas, f, i % n, i / n) else {
                     continue;
                 };
                 let len = (nrm[0] * b[0] + nrm[1] * b[1] + nrm[2] * b[2]).norm();
@@ -747,14 +753,13 @@ pub(super) fn bake(
                     let off = c.off[0] * b[0] + c.off[1] * b[1] + c.off[2] * b[2];
                     // Weight falls with distance in the exemplar and with the angle between
                     // the surface and the patch plane (both continuous over the surface).
-                    // (`bump` of the distance over the radius, from its square: no root.)
-                    let s = 1.0 - off.norm_squared() * inv_r2;
-                    if s <= 0.0 {
+                    let near_centre = bump_squared(off.norm_squared() * inv_r2);
+                    if near_centre == 0.0 {
                         continue;
                     }
                     let cos = (c.dot[0] * b[0] + c.dot[1] * b[1] + c.dot[2] * b[2]) / len;
                     let facing = ((cos - 0.2) / 0.5).clamp(0.0, 1.0) as f32;
-                    let w = (s * s) as f32 * facing;
+                    let w = near_centre * facing;
                     if w > 0.0 {
                         let s = &sources[c.source as usize];
                         near.push((w, s.ex.sample(c.offset[0] + off.x, c.offset[1] + off.y)));
