@@ -241,36 +241,64 @@ impl Layer {
         }
     }
 
-    /// The expansion of level `l + 1` at texel (`x`, `y`) of level `l` (chart coordinates),
-    /// normalised; `None` where it knows nothing.
-    #[inline]
-    pub(super) fn expanded(&self, l: usize, x: usize, y: usize) -> Option<[f32; 3]> {
+    /// The expansion taps of level `l + 1` for every column and row of level `l` this layer
+    /// covers (layer coordinates, the taps inside the layer's level `l + 1`): what
+    /// [`up_taps`] and [`for_taps_in`] give for each texel, worked out once per column and row
+    /// instead of once per texel.
+    pub(super) fn up_grid(&self, l: usize) -> UpGrid {
         let g = &self.g[l];
         let (nw, nh) = self.chart[l + 1];
-        let mut s = [0f32; 4];
-        for_taps_in(
-            up_taps(x, nw, &self.k),
-            up_taps(y, nh, &self.k),
-            (self.ox >> (l + 1), self.oy >> (l + 1)),
-            (g.w, g.h),
-            |i, wt| {
-                for (sk, v) in s.iter_mut().zip(&g.d[4 * i..4 * i + 4]) {
-                    *sk += wt * v;
+        let (bx, by) = (self.ox >> (l + 1), self.oy >> (l + 1));
+        let (ox, oy) = (self.ox >> l, self.oy >> l);
+        // The level-`l` extent of the layer: twice the next level's, which covers it.
+        let (w, h) = (2 * g.w, 2 * g.h);
+        let inside = |(idx, wt, n): ([usize; 3], [f32; 3], usize), b: usize, len: usize| {
+            let mut out = ([0usize; 3], [0f32; 3], 0usize);
+            for t in 0..n {
+                if let Some(i) = idx[t].checked_sub(b).filter(|&v| v < len) {
+                    out.0[out.2] = i;
+                    out.1[out.2] = wt[t];
+                    out.2 += 1;
                 }
-            },
-        );
-        (s[3] > EPS).then(|| [s[0] / s[3], s[1] / s[3], s[2] / s[3]])
+            }
+            out
+        };
+        UpGrid {
+            cols: (0..w)
+                .map(|x| inside(up_taps(ox + x, nw, &self.k), bx, g.w))
+                .collect(),
+            rows: (0..h)
+                .map(|y| inside(up_taps(oy + y, nh, &self.k), by, g.h))
+                .collect(),
+            origin: (ox, oy),
+        }
     }
 
     /// Band `l` at texel (`x`, `y`) of level `l` (chart coordinates) whose level value is
-    /// `v`: `v` minus the normalised expansion of the next level, `v` itself at the top.
+    /// `v`: `v` minus the normalised expansion of the next level (taps `up`, from
+    /// [`Self::up_grid`]), `v` itself at the top (`up` = `None`).
     #[inline]
-    pub(super) fn band(&self, l: usize, x: usize, y: usize, mut v: [f32; 3]) -> [f32; 3] {
-        if l < self.levels() {
-            if let Some(u) = self.expanded(l, x, y) {
-                for k in 0..3 {
-                    v[k] -= u[k];
+    fn band(&self, l: usize, up: Option<&UpGrid>, x: usize, y: usize, mut v: [f32; 3]) -> [f32; 3] {
+        let Some(up) = up else {
+            return v;
+        };
+        let g = &self.g[l];
+        let (xi, xw, xn) = up.cols[x - up.origin.0];
+        let (yi, yw, yn) = up.rows[y - up.origin.1];
+        // The sums of `for_taps_in`, in its order.
+        let mut s = [0f32; 4];
+        for b in 0..yn {
+            for a in 0..xn {
+                let i = yi[b] * g.w + xi[a];
+                let wt = xw[a] * yw[b];
+                for (sk, v) in s.iter_mut().zip(&g.d[4 * i..4 * i + 4]) {
+                    *sk += wt * v;
                 }
+            }
+        }
+        if s[3] > EPS {
+            for k in 0..3 {
+                v[k] -= s[k] / s[3];
             }
         }
         v
@@ -286,7 +314,9 @@ impl Layer {
         winner_mode: bool,
         fine: impl Iterator<Item = (usize, usize, [f32; 3], f32)>,
     ) {
+        let ups: Vec<UpGrid> = (0..self.levels()).map(|l| self.up_grid(l)).collect();
         for l in 1..=self.levels() {
+            let up = ups.get(l);
             let (g, m) = (&self.g[l - 1], &self.m[l - 1]);
             let (ox, oy) = (self.ox >> l, self.oy >> l);
             let cw = acc.num[l].w;
@@ -299,7 +329,7 @@ impl Layer {
                         continue;
                     }
                     let v = std::array::from_fn(|k| g.d[4 * i + k] / wg);
-                    let band = self.band(l, ox + x, oy + y, v);
+                    let band = self.band(l, up, ox + x, oy + y, v);
                     let gi = (oy + y) * cw + ox + x;
                     den[gi] += mw;
                     for k in 0..3 {
@@ -310,7 +340,7 @@ impl Layer {
         }
         let cw = acc.num[0].w;
         for (x, y, c, mw) in fine {
-            let band = self.band(0, x, y, c);
+            let band = self.band(0, ups.first(), x, y, c);
             let gi = y * cw + x;
             if winner_mode {
                 let mean = &mut acc.finest[3 * gi..3 * gi + 3];
@@ -342,6 +372,15 @@ impl Layer {
             }
         }
     }
+}
+
+/// Per column and per row of one level of a layer, the taps of the next level's expansion
+/// ([`Layer::up_grid`]): indices into that level's planes, weights, count.
+pub(super) struct UpGrid {
+    pub(super) cols: Vec<([usize; 3], [f32; 3], usize)>,
+    pub(super) rows: Vec<([usize; 3], [f32; 3], usize)>,
+    /// Chart coordinates of the first column and row.
+    pub(super) origin: (usize, usize),
 }
 
 /// One reduction of `src`, which covers the texels from (`ox`, `oy`) (even) of a level

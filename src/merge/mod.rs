@@ -783,6 +783,57 @@ mod tests {
         }
     }
 
+    /// The expansion taps worked out once per column and row of a layer are, texel by
+    /// texel, those of the kernel's rule ([`up_taps`] clipped to the layer, [`for_taps_in`]),
+    /// in the same order (so the same sums), for a part of a chart away from its origin and
+    /// reaching its far border, at every level.
+    #[test]
+    fn expansion_taps_per_row_and_column_are_the_per_texel_ones() {
+        let (w, h, levels) = (45, 38, 2);
+        let acc = ChartAcc::new(&chart(w, h, levels), false, false);
+        let (ox, oy) = (8, 4);
+        let mut layer = Layer::new((ox, oy), (w - ox, 29), acc.sizes(), 0.4);
+        layer.splat(20, 20, [0.5; 3], 1.0, 1.0);
+        layer.reduce();
+        let k = pyramid::kernel(0.4);
+        let mut checked = 0;
+        for l in 0..levels {
+            let up = layer.up_grid(l);
+            let g = &layer.g[l];
+            let (nw, nh) = layer.chart[l + 1];
+            // The level-l texels of the part.
+            let (pw, ph) = if l == 0 {
+                (w - ox, 29)
+            } else {
+                (layer.g[l - 1].w, layer.g[l - 1].h)
+            };
+            for y in (oy >> l)..(oy >> l) + ph {
+                for x in (ox >> l)..(ox >> l) + pw {
+                    let mut rule = Vec::new();
+                    for_taps_in(
+                        up_taps(x, nw, &k),
+                        up_taps(y, nh, &k),
+                        (ox >> (l + 1), oy >> (l + 1)),
+                        (g.w, g.h),
+                        |i, wt| rule.push((i, wt)),
+                    );
+                    let (xi, xw, xn) = up.cols[x - up.origin.0];
+                    let (yi, yw, yn) = up.rows[y - up.origin.1];
+                    let mut grid = Vec::new();
+                    for b in 0..yn {
+                        for a in 0..xn {
+                            grid.push((yi[b] * g.w + xi[a], xw[a] * yw[b]));
+                        }
+                    }
+                    assert_eq!(rule, grid, "level {l} texel ({x}, {y})");
+                    assert!(!grid.is_empty());
+                    checked += 1;
+                }
+            }
+        }
+        assert!(checked > 1000, "{checked}");
+    }
+
     /// Best-view masks: the finest band is the mean of the layers' finest bands weighted by
     /// their fine weights (whatever order they come in), while the coarser bands follow the
     /// coarse masks; an infinite weight replaces what came before.
