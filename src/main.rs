@@ -15,7 +15,7 @@ use std::process::ExitCode;
     version,
     about = "Texture atlases for 3D-scanned objects from calibrated photographs",
     after_help = "Exit status: 0 done; 1 bad input or option value (the message names the file, \
-                  line or element); 2 usage error; 3 internal error (a bug: please report it); \
+                  line or element), or a CPU this build cannot use; 2 usage error; 3 internal error (a bug: please report it); \
                   128 + N stopped by signal N (nothing half-written is left)."
 )]
 struct Cli {
@@ -1031,6 +1031,10 @@ fn print_out(text: &str) {
 }
 
 fn main() -> ExitCode {
+    if let Err(e) = cpu_supports_build() {
+        eprintln!("scantex: error: {e}");
+        return ExitCode::from(EXIT_INPUT);
+    }
     let cli = Cli::parse();
     remove_outputs_on_signals();
     match run(cli) {
@@ -1043,6 +1047,35 @@ fn main() -> ExitCode {
             })
         }
     }
+}
+
+/// Whether this CPU has the instructions the build was allowed to use: an x86-64 build for
+/// x86-64-v3 (`.cargo/config.toml`) would otherwise stop on an illegal instruction somewhere
+/// in the work, with no word of why. Checked before anything else runs (the standard library's
+/// start-up code is built for any x86-64).
+fn cpu_supports_build() -> Result<(), String> {
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    {
+        use std::arch::is_x86_feature_detected as has;
+        let ok = has!("avx")
+            && has!("avx2")
+            && has!("bmi1")
+            && has!("bmi2")
+            && has!("f16c")
+            && has!("fma")
+            && has!("lzcnt")
+            && has!("movbe");
+        if !ok {
+            return Err(
+                "this build of scantex needs an x86-64-v3 CPU (AVX2, FMA, F16C, \
+                        BMI1/2, LZCNT, MOVBE: Intel Haswell, AMD Excavator or later); build \
+                        one for this CPU with RUSTFLAGS=\"-C target-cpu=x86-64\" cargo build \
+                        --release --locked"
+                    .into(),
+            );
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]
