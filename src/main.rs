@@ -15,8 +15,9 @@ use std::process::ExitCode;
     version,
     about = "Texture atlases for 3D-scanned objects from calibrated photographs",
     after_help = "Exit status: 0 done; 1 bad input or option value (the message names the file, \
-                  line or element), or a CPU this build cannot use; 2 usage error; 3 internal error (a bug: please report it); \
-                  128 + N stopped by signal N (nothing half-written is left)."
+                  line or element), or a CPU this build cannot use; 2 usage error; 3 internal \
+                  error (a bug: please report it); 128 + N stopped by signal N (nothing \
+                  half-written is left)."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -1056,15 +1057,15 @@ fn main() -> ExitCode {
 /// start-up code is built for any x86-64). The CPUID bits are read directly:
 /// `is_x86_feature_detected!` answers `true` without asking the CPU for every feature the
 /// build enables.
+#[allow(unused_unsafe)]
 fn cpu_supports_build() -> bool {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     {
         use std::arch::x86_64::{__cpuid, __cpuid_count, _xgetbv};
         let bit = |r: u32, b: u32| r >> b & 1 == 1;
-        #[allow(unused_unsafe)]
         // SAFETY: CPUID exists on every x86-64 CPU; XGETBV is executed only where CPUID says
         // the OS enabled it (OSXSAVE).
-        let ok = unsafe {
+        unsafe {
             let l1 = __cpuid(1);
             let l7 = __cpuid_count(7, 0);
             let ext = __cpuid(0x8000_0001);
@@ -1079,11 +1080,9 @@ fn cpu_supports_build() -> bool {
                 && bit(l7.ebx, 3) // BMI1
                 && bit(l7.ebx, 8) // BMI2
                 && bit(ext.ecx, 5) // LZCNT
-        };
-        if !ok {
-            return false;
         }
     }
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
     true
 }
 
@@ -1094,7 +1093,6 @@ const CPU_MESSAGE: &str = "this build of scantex needs an x86-64-v3 CPU (AVX2, F
 
 #[cfg(test)]
 mod tests {
-    /// clap's own consistency checks (duplicate flags and the like) on every subcommand.
     /// The machines the tests run on have what the build uses: the check reads the CPU
     /// itself and accepts it.
     #[test]
@@ -1102,6 +1100,7 @@ mod tests {
         assert!(super::cpu_supports_build());
     }
 
+    /// clap's own consistency checks (duplicate flags and the like) on every subcommand.
     #[test]
     fn cli_definition_is_consistent() {
         use clap::CommandFactory;
