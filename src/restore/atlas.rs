@@ -229,11 +229,10 @@ pub fn restore_atlas(
             let mut cimg = Vec::with_capacity(cw * chh * 3);
             let mut cdom = Vec::with_capacity(cw * chh);
             for y in 0..chh {
-                for x in 0..cw {
-                    let i = idx(x, y);
-                    cimg.extend_from_slice(&data[i * 3..i * 3 + 3]);
-                    cdom.push(domain[i] && !mask[i]);
-                }
+                let row = idx(0, y)..idx(cw, y);
+                // A row at a time: three floats per call spent a second in memmove at 8192.
+                cimg.extend_from_slice(&data[row.start * 3..row.end * 3]);
+                cdom.extend(row.map(|i| domain[i] && !mask[i]));
             }
             let mut cmask = vec![false; cw * chh];
             for &k in &crop.holes {
