@@ -410,7 +410,7 @@ pub fn extend_into_gutter(color: &mut [f32], source: &mut [u8], n: usize, width:
         })
         .collect();
     // Texels already in the next ring carry this mark instead of a sort and dedup of the
-    // ring (a third of the refill's time at 8192); no mark outlives the call.
+    // ring (the sorts took about 0.8 CPU s of a run at 8192); no mark outlives the call.
     const QUEUED: u8 = u8::MAX;
     let mut filled = 0u64;
     for _ in 0..width {

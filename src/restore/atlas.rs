@@ -230,7 +230,7 @@ pub fn restore_atlas(
             let mut cdom = Vec::with_capacity(cw * chh);
             for y in 0..chh {
                 let row = idx(0, y)..idx(cw, y);
-                // A row at a time: three floats per call spent a second in memmove at 8192.
+                // A row at a time: a call per texel spent about 0.9 CPU s in memmove at 8192.
                 cimg.extend_from_slice(&data[row.start * 3..row.end * 3]);
                 cdom.extend(row.map(|i| domain[i] && !mask[i]));
             }
