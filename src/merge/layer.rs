@@ -66,26 +66,41 @@ pub(super) fn up_taps(x: usize, n: usize, k: &[f32; 5]) -> ([usize; 3], [f32; 3]
     }
 }
 
-/// Calls `f(index, weight)` for the products of the column taps `(xi, xw, xn)` and row taps
-/// `(yi, yw, yn)` (level coordinates) that fall inside a `w` x `h` buffer whose origin is
-/// (`bx`, `by`) on that level.
+/// The taps `(idx, wt, n)` (level coordinates) that fall inside `[b, b + len)`, moved to
+/// buffer coordinates, in their order.
+#[inline(always)]
+pub(super) fn clip_taps<const N: usize>(
+    (idx, wt, n): ([usize; N], [f32; N], usize),
+    b: usize,
+    len: usize,
+) -> ([usize; N], [f32; N], usize) {
+    let mut out = ([0usize; N], [0f32; N], 0usize);
+    for t in 0..n {
+        if let Some(i) = idx[t].checked_sub(b).filter(|&v| v < len) {
+            out.0[out.2] = i;
+            out.1[out.2] = wt[t];
+            out.2 += 1;
+        }
+    }
+    out
+}
+
+/// Calls `f(index, weight)` for the products of the column taps and row taps (level
+/// coordinates, [`clip_taps`]) that fall inside a `w` x `h` buffer whose origin is
+/// (`bx`, `by`) on that level, rows outer.
 #[inline(always)]
 pub(super) fn for_taps_in<const NX: usize, const NY: usize>(
-    (xi, xw, xn): ([usize; NX], [f32; NX], usize),
-    (yi, yw, yn): ([usize; NY], [f32; NY], usize),
+    cols: ([usize; NX], [f32; NX], usize),
+    rows: ([usize; NY], [f32; NY], usize),
     (bx, by): (usize, usize),
     (w, h): (usize, usize),
     mut f: impl FnMut(usize, f32),
 ) {
+    let (xi, xw, xn) = clip_taps(cols, bx, w);
+    let (yi, yw, yn) = clip_taps(rows, by, h);
     for b in 0..yn {
-        let Some(yy) = yi[b].checked_sub(by).filter(|&v| v < h) else {
-            continue;
-        };
         for a in 0..xn {
-            let Some(xx) = xi[a].checked_sub(bx).filter(|&v| v < w) else {
-                continue;
-            };
-            f(yy * w + xx, xw[a] * yw[b]);
+            f(yi[b] * w + xi[a], xw[a] * yw[b]);
         }
     }
 }
@@ -242,9 +257,9 @@ impl Layer {
     }
 
     /// The expansion taps of level `l + 1` for every column and row of level `l` this layer
-    /// covers (layer coordinates, the taps inside the layer's level `l + 1`): what
-    /// [`up_taps`] and [`for_taps_in`] give for each texel, worked out once per column and row
-    /// instead of once per texel.
+    /// covers (layer coordinates, the taps inside the layer's level `l + 1`): [`up_taps`]
+    /// clipped by [`clip_taps`] once per column and row instead of once per texel, as
+    /// [`for_taps_in`] would for each texel.
     pub(super) fn up_grid(&self, l: usize) -> UpGrid {
         let g = &self.g[l];
         let (nw, nh) = self.chart[l + 1];
@@ -252,23 +267,12 @@ impl Layer {
         let (ox, oy) = (self.ox >> l, self.oy >> l);
         // The level-`l` extent of the layer: twice the next level's, which covers it.
         let (w, h) = (2 * g.w, 2 * g.h);
-        let inside = |(idx, wt, n): ([usize; 3], [f32; 3], usize), b: usize, len: usize| {
-            let mut out = ([0usize; 3], [0f32; 3], 0usize);
-            for t in 0..n {
-                if let Some(i) = idx[t].checked_sub(b).filter(|&v| v < len) {
-                    out.0[out.2] = i;
-                    out.1[out.2] = wt[t];
-                    out.2 += 1;
-                }
-            }
-            out
-        };
         UpGrid {
             cols: (0..w)
-                .map(|x| inside(up_taps(ox + x, nw, &self.k), bx, g.w))
+                .map(|x| clip_taps(up_taps(ox + x, nw, &self.k), bx, g.w))
                 .collect(),
             rows: (0..h)
-                .map(|y| inside(up_taps(oy + y, nh, &self.k), by, g.h))
+                .map(|y| clip_taps(up_taps(oy + y, nh, &self.k), by, g.h))
                 .collect(),
             origin: (ox, oy),
         }
