@@ -216,7 +216,8 @@ enum Command {
         #[arg(long, default_value_t = scantex::restore::Handing::default().min_depth, allow_negative_numbers = true, value_parser = number_in(0.0f64..=f64::INFINITY))]
         min_depth: f64,
         /// Exemplar synthesis of the regions restoration leaves (stage 6): auto (per region,
-        /// the crop of photographed texture most like its rim), off (they keep their vertex
+        /// the square of photographed surface most like its rim, flattened onto its tangent
+        /// plane; --debug-dir shows them as exemplar0.png...), off (they keep their vertex
         /// colours), or an image file (one pixel per atlas texel, its top towards up).
         #[arg(long, default_value_t = scantex::synth::SynthOptions::default().exemplar)]
         exemplar: scantex::synth::ExemplarSource,

@@ -384,6 +384,9 @@ pub struct TexturedPage {
     pub unrestored: Option<restore::Unrestored>,
     /// Stage 6's patch map ([`synth::Synthesized::patches`]; empty unless kept), if it ran.
     pub patch_map: Option<Vec<(u32, u32)>>,
+    /// Stage 6's exemplars from the surface ([`synth::Synthesized::exemplars`]; empty unless
+    /// kept).
+    pub exemplars: Vec<image::RgbImage>,
 }
 
 /// The product of [`texture`].
@@ -878,9 +881,9 @@ fn texture_page(
         }
         _ => None,
     };
-    let (synth, patch_map) = match synth {
-        Some(made) => (Some(made.report), Some(made.patches)),
-        None => (None, None),
+    let (synth, patch_map, exemplars) = match synth {
+        Some(made) => (Some(made.report), Some(made.patches), made.exemplars),
+        None => (None, None, Vec::new()),
     };
     let seams = seam_visibility(
         m,
@@ -909,6 +912,7 @@ fn texture_page(
         resampled,
         unrestored,
         patch_map,
+        exemplars,
     };
     Ok((page, report))
 }
@@ -920,7 +924,8 @@ fn to_png8(img: &Rgb32FImage) -> Result<EncodedTexture> {
 /// Writes `<dir>/model.obj` (+ `model.mtl`, `model.png|exr`), `model.glb`, `report.json`, and
 /// with `debug` the pictures `classes.png`, `coverage.png`, `masks.png` (the photograph whose
 /// mask wins each texel), `restore.png` (texels restored and left), `synth.png` (stage 6's
-/// patches, when it ran and kept its patch map) and `layout.png` into that
+/// patches, when it ran and kept its patch map), `exemplar0.png`... (its exemplars from the
+/// surface) and `layout.png` into that
 /// directory. Every file appears at once or none does.
 pub fn write_outputs(
     dir: &Path,
@@ -1006,6 +1011,10 @@ impl<'a> PageWriter<'a> {
         ) {
             let enc = io::image::encode_png(&DynamicImage::ImageRgb8(pic))?;
             staged.write(&d.join(name(base)), &enc.bytes)?;
+        }
+        for (k, pic) in page.exemplars.iter().enumerate() {
+            let enc = io::image::encode_png(&DynamicImage::ImageRgb8(pic.clone()))?;
+            staged.write(&d.join(name(&format!("exemplar{k}"))), &enc.bytes)?;
         }
         Ok(())
     }

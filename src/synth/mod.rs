@@ -1,11 +1,13 @@
 //! Stage 6: exemplar patch synthesis on the surface for the regions no photograph saw and
 //! restoration left (`restore::Unrestored::regions`). Each region gets a smooth low band that
-//! continues the colours at its rim and detail from an exemplar (a crop of what the
-//! photographs saw, chosen by orientation, colour and place, or the user's image), pasted in
+//! continues the colours at its rim and detail from an exemplar (a square of the surface the
+//! photographs saw, flattened onto its tangent plane and chosen by orientation, colour and
+//! place, or the user's image), pasted in
 //! overlapping surface patches and blended so that the exemplar's histogram is kept
 //! (`surface`, `plane`). The 2D core also runs on its own ([`plane::synthesize`],
 //! `scantex synth`).
 
+mod flat;
 mod pick;
 pub mod plane;
 mod surface;
@@ -28,7 +30,8 @@ use surface::{Layout, Source};
 pub enum ExemplarSource {
     /// No stage 6: the regions restoration left keep their vertex colours.
     Off,
-    /// Per region, the crop of the atlas's seen texels most like the region's rim. Default.
+    /// Per region, the square of the photographed surface most like the region's rim,
+    /// flattened onto its tangent plane. Default.
     #[default]
     Auto,
     /// This image for every region, one pixel per atlas texel, its top towards "up".
@@ -119,13 +122,13 @@ impl SynthOptions {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[serde(tag = "kind", rename_all = "lowercase")]
 pub enum ExemplarUsed {
-    /// A crop of the atlas (left column, top row, side in texels).
-    Atlas {
-        /// Left column.
-        x: usize,
-        /// Top row.
-        y: usize,
-        /// Side.
+    /// A square of the photographed surface flattened onto its tangent plane.
+    Surface {
+        /// The face it is centred on.
+        face: u32,
+        /// Its centre (the face's centroid), scene frame.
+        centre: [f64; 3],
+        /// Side, texels.
         size: usize,
     },
     /// The user's image.
@@ -186,6 +189,10 @@ pub struct Synthesized {
     /// With [`SynthOptions::keep_patch_map`]: each texel written (row-major index) and its
     /// heaviest patch (`u32::MAX` where no patch reached it).
     pub patches: Vec<(u32, u32)>,
+    /// With [`SynthOptions::keep_patch_map`]: the exemplars taken from the surface, as the
+    /// photographs coloured them (before their detail is split off), in the order of
+    /// [`RegionReport::exemplar`]'s first mention.
+    pub exemplars: Vec<image::RgbImage>,
 }
 
 /// Stage 6's picture: each texel it wrote in the colour of its heaviest patch (white where no
@@ -369,13 +376,14 @@ pub fn synthesize(
     );
     report.seconds_low_band = t.elapsed().as_secs_f64();
     t = Instant::now();
-    // Exemplars: the user's, or per region the atlas crop most like its rim.
+    // Exemplars: the user's, or per region the surface square most like its rim.
     let tpu = atlas.texels_per_unit();
     let (lo, hi) = mesh.bounding_box();
     let object_radius = (hi - lo).norm() / 2.0;
     let sigma = radius / 4.0;
     let mut sources: Vec<Source> = Vec::new();
     let mut used: Vec<(ExemplarUsed, Option<u32>)> = Vec::with_capacity(left.regions.len());
+    let mut exemplars = Vec::new();
     // Each region's photographed texels around its rim: its exemplar's look and constraints.
     let eyes: Vec<pick::Eye> = photos
         .iter()
@@ -390,9 +398,9 @@ pub fn synthesize(
     let side = (((2.0 * radius + 8.0) / 8.0).ceil() * 8.0) as usize;
     let lag = (sigma.round() as usize).max(1);
     let (cands, floor) = if user.is_none() {
-        let mut cands = pick::candidates(mesh, atlas, res, &eyes, &up, side, lag);
+        let mut cands = pick::candidates(mesh, &adj, atlas, res, &eyes, &up, side, lag);
         if cands.is_empty() {
-            cands = pick::candidates(mesh, atlas, res, &eyes, &up, side / 2, lag);
+            cands = pick::candidates(mesh, &adj, atlas, res, &eyes, &up, side / 2, lag);
         }
         pick::sharp_only(cands)
     } else {
@@ -417,7 +425,7 @@ pub fn synthesize(
         });
         used.extend(left.regions.iter().map(|_| (ExemplarUsed::File, Some(0))));
     } else {
-        let mut chosen: Vec<(usize, usize, usize)> = Vec::new();
+        let mut chosen: Vec<u32> = Vec::new();
         for (r, rim) in left.regions.iter().zip(&rims) {
             let (mut colour, mut cnt) = ([0f64; 3], 0.0f64);
             let mut centre = Vector3::zeros();
@@ -457,33 +465,39 @@ pub fn synthesize(
             };
             match pick::choose(&cands, &look, object_radius) {
                 Some(c) => {
-                    let key = (c.x, c.y, c.size);
+                    let key = c.square.seed;
                     let id = match chosen.iter().position(|k| *k == key) {
                         Some(i) => i,
                         None => {
-                            let n = atlas.size as usize;
-                            let data: &[f32] = res.color.as_raw();
-                            let texels: Vec<[f32; 3]> = (0..c.size * c.size)
-                                .map(|j| {
-                                    let i = (c.y + j / c.size) * n + c.x + j % c.size;
-                                    [data[i * 3], data[i * 3 + 1], data[i * 3 + 2]]
-                                })
-                                .collect();
+                            let size = c.square.size;
+                            let texels = pick::texels(mesh, atlas, res, c);
+                            if opts.keep_patch_map {
+                                let img = image::Rgb32FImage::from_fn(
+                                    size as u32,
+                                    size as u32,
+                                    |x, y| image::Rgb(texels[y as usize * size + x as usize]),
+                                );
+                                exemplars.push(crate::render::to_rgb8(&img));
+                            }
                             let ex = plane::Exemplar::new(
-                                c.size,
-                                c.size,
-                                &detail(&texels, c.size, c.size, sigma),
+                                size,
+                                size,
+                                &detail(&texels, size, size, sigma),
                             )?;
-                            sources.push(Source { ex, m: c.m });
+                            let tpu = c.square.tpu;
+                            sources.push(Source {
+                                ex,
+                                m: Matrix2::new(tpu, 0.0, 0.0, -tpu),
+                            });
                             chosen.push(key);
                             chosen.len() - 1
                         }
                     };
                     used.push((
-                        ExemplarUsed::Atlas {
-                            x: c.x,
-                            y: c.y,
-                            size: c.size,
+                        ExemplarUsed::Surface {
+                            face: c.square.seed,
+                            centre: c.square.centre.into(),
+                            size: c.square.size,
                         },
                         Some(id as u32),
                     ));
@@ -571,5 +585,6 @@ pub fn synthesize(
     Ok(Synthesized {
         report,
         patches: patch_map,
+        exemplars,
     })
 }

@@ -1,9 +1,9 @@
-//! Exemplars from what the photographs saw: square crops of the atlas lying wholly in seen
-//! texels of one chart, described by how their surface faces "up", their mean colour and
-//! where they are; each region takes the crop most like its rim (orientation, colour, place).
-//! A crop is flattened at the texel density the photographs gave it: its map from the surface
-//! (the chart's Jacobian) goes with it.
+//! Exemplars from what the photographs saw: squares of the photographed surface flattened
+//! onto their tangent plane at the atlas's texel density ([`super::flat`]), described by how
+//! their surface faces "up", their mean colour, detail and where they are; each region takes
+//! the square most like its rim (orientation, colour, place).
 
+use super::flat::{colour, seeds, square, Square};
 use super::surface::tangent_up;
 use crate::atlas::Atlas;
 use crate::camera::PosedCamera;
@@ -17,18 +17,15 @@ fn texel_luma(data: &[f32], i: usize) -> f64 {
     crate::planar::luma(&[data[i * 3], data[i * 3 + 1], data[i * 3 + 2]])
 }
 
-/// Side of the blocks the seen test works on, texels.
-const BLOCK: usize = 8;
+/// Most squares flattened as candidates: their centres are spread over the photographed
+/// surface on a grid coarse enough to hold at most this many.
+pub(super) const MAX_CANDIDATES: usize = 4096;
 
-/// A crop of the atlas that can serve as an exemplar.
+/// A square of the photographed surface that can serve as an exemplar.
 #[derive(Debug, Clone)]
 pub(super) struct Candidate {
-    /// Left column.
-    pub(super) x: usize,
-    /// Top row.
-    pub(super) y: usize,
-    /// Side, texels.
-    pub(super) size: usize,
+    /// Where on the surface, flattened how.
+    pub(super) square: Square,
     /// Mean colour.
     pub(super) mean: [f32; 3],
     /// Mean of the surface normal's component along up.
@@ -38,19 +35,16 @@ pub(super) struct Candidate {
     /// Detail energy: mean squared difference between a texel's luma and the mean of its
     /// four neighbours `lag` texels away (the detail scale stage 6 pastes).
     pub(super) detail: f64,
-    /// Largest distance between the mean colours of the crop's four quadrants: a colour edge
-    /// or gradient inside the crop, which would paste as blotches.
+    /// Largest distance between the mean colours of the square's four quadrants: a colour
+    /// edge or gradient inside it, which would paste as blotches.
     pub(super) spread: f64,
-    /// Tangent offsets (right, up; scene units) to crop texels.
-    pub(super) m: Matrix2<f64>,
-    /// How sharply the photographs saw the crop: the least, over its sampled texels, of the
-    /// winning photograph's pixels per texel along the most foreshortened direction. Low
-    /// where the crop was seen at a grazing angle or from afar: there a photograph pixel is
+    /// How sharply the photographs saw the square: the least, over its sampled texels, of
+    /// the winning photograph's pixels per texel along the most foreshortened direction. Low
+    /// where it was seen at a grazing angle or from afar: there a photograph pixel is
     /// stretched over several texels and its edges come out as stripes, which pasted
     /// elsewhere would repeat as a pattern the surface never had.
     pub(super) sharpness: f64,
 }
-
 /// A photograph as exemplar choice sees it: its pose and focal length in pixels.
 pub(super) struct Eye<'a> {
     /// Camera and pose.
@@ -114,11 +108,14 @@ pub(super) fn face_map(
     Some(Matrix2::from_columns(&[j * right, j * tu]))
 }
 
-/// Every crop of side `size` (a multiple of [`BLOCK`]) on a grid of half its side whose
-/// texels were all coloured by photographs and belong to one chart; detail measured at `lag`
-/// texels, sharpness from `eyes` (indexed as `res.best_photo`).
+/// Every square of side `size` texels (at the atlas's texel density, `tpu`) centred on one
+/// of [`seeds`]' faces (a grid of half its side, coarsened to [`MAX_CANDIDATES`]) that
+/// [`Square::flatten`] accepts: photographed throughout, nearly flat; detail measured at
+/// `lag` texels, sharpness from `eyes` (indexed as `res.best_photo`). In seed order.
+#[allow(clippy::too_many_arguments)]
 pub(super) fn candidates(
     mesh: &Mesh,
+    adj: &[[u32; 3]],
     atlas: &Atlas,
     res: &Resampled,
     eyes: &[Eye],
@@ -128,86 +125,64 @@ pub(super) fn candidates(
 ) -> Vec<Candidate> {
     let (color, source) = (&res.color, &res.source[..]);
     let n = atlas.size as usize;
-    let nb = n / BLOCK;
-    if size < BLOCK || size > n || nb == 0 {
+    let tpu = atlas.texels_per_unit();
+    if size < 8 || size > n {
         return Vec::new();
     }
-    let full: Vec<bool> = (0..nb * nb)
-        .into_par_iter()
-        .map(|b| {
-            let (bx, by) = (b % nb, b / nb);
-            (0..BLOCK).all(|dy| {
-                let row = (by * BLOCK + dy) * n + bx * BLOCK;
-                source[row..row + BLOCK]
-                    .iter()
-                    .all(|&s| s == TexelSource::Photos as u8)
-            })
-        })
-        .collect();
-    // Summed-area table over blocks.
-    let mut sat = vec![0u32; (nb + 1) * (nb + 1)];
-    for by in 0..nb {
-        for bx in 0..nb {
-            sat[(by + 1) * (nb + 1) + bx + 1] = u32::from(full[by * nb + bx])
-                + sat[by * (nb + 1) + bx + 1]
-                + sat[(by + 1) * (nb + 1) + bx]
-                - sat[by * (nb + 1) + bx];
-        }
-    }
-    let sb = size / BLOCK;
-    let mut step = (sb / 2).max(1);
-    while (nb / step).pow(2) > 40_000 {
-        step *= 2;
-    }
-    let positions: Vec<(usize, usize)> = (0..=nb - sb)
-        .step_by(step)
-        .flat_map(|by| (0..=nb - sb).step_by(step).map(move |bx| (bx, by)))
-        .filter(|&(bx, by)| {
-            let s = |x: usize, y: usize| sat[y * (nb + 1) + x];
-            s(bx + sb, by + sb) + s(bx, by) - s(bx + sb, by) - s(bx, by + sb) == (sb * sb) as u32
-        })
-        .collect();
+    // Half the square's side, rounded down to a power of two scene units: atlases that differ
+    // a little in density (another packing) seed the same faces.
+    let cell = (size as f64 / 2.0 / tpu).log2().floor().exp2();
     let data: &[f32] = color.as_raw();
-    positions
+    seeds(mesh, atlas, source, cell, MAX_CANDIDATES)
         .par_iter()
-        .filter_map(|&(bx, by)| {
-            let (x0, y0) = (bx * BLOCK, by * BLOCK);
-            let chart = atlas.face_chart[atlas.owner(y0 * n + x0)? as usize];
-            let (mut mean, mut facing, mut centre, mut m, mut count) =
-                ([0f64; 3], 0.0, Vector3::zeros(), Matrix2::zeros(), 0usize);
-            let luma = |i: usize| texel_luma(data, i);
+        .filter_map(|&seed| {
+            let sq = square(mesh, adj, seed, size, tpu, up)?;
+            let under = sq.flatten(mesh, atlas, source)?;
+            let at = |x: usize, y: usize| colour(data, &under[y * size + x]);
+            let luma = |x: usize, y: usize| crate::planar::luma(&at(x, y));
+            let (mut mean, mut facing, mut centre, mut count) =
+                ([0f64; 3], 0.0, Vector3::zeros(), 0usize);
             let mut detail = 0.0;
             let mut quad = [[0f64; 4]; 4];
             let mut sharpness = f64::INFINITY;
-            for y in (y0..y0 + size).step_by(4) {
-                for x in (x0..x0 + size).step_by(4) {
-                    let i = y * n + x;
-                    let f = atlas.owner(i)? as usize;
-                    if atlas.face_chart[f] != chart {
-                        return None;
-                    }
-                    let nrm = mesh.face_normal_area(FaceId(f as u32));
-                    let tri = mesh.triangle(FaceId(f as u32));
-                    for k in 0..3 {
-                        mean[k] += data[i * 3 + k] as f64;
-                    }
-                    facing += nrm.normalize().dot(up);
+            // One sharpness per face and photograph: the face's centroid stands for its texels.
+            let mut memo: Option<(u32, u16, f64)> = None;
+            for y in (0..size).step_by(4) {
+                for x in (0..size).step_by(4) {
+                    let u = &under[y * size + x];
+                    let f = FaceId(u.face);
+                    let nrm = mesh.face_normal_area(f).normalize();
+                    let tri = mesh.triangle(f);
                     let mid = Point3::from((tri[0].coords + tri[1].coords + tri[2].coords) / 3.0);
-                    centre += mid.coords;
-                    let fm = face_map(mesh, atlas, f, up)?;
-                    m += fm;
-                    let px = seen_sharpness(eyes, res.best_photo[i], &mid, &nrm.normalize(), &fm);
-                    sharpness = sharpness.min(px);
-                    let (xa, xb) = (x.max(x0 + lag) - lag, (x + lag).min(x0 + size - 1));
-                    let (ya, yb) = (y.max(y0 + lag) - lag, (y + lag).min(y0 + size - 1));
-                    let around =
-                        (luma(y * n + xa) + luma(y * n + xb) + luma(ya * n + x) + luma(yb * n + x))
-                            / 4.0;
-                    detail += (luma(i) - around).powi(2);
-                    let q = &mut quad
-                        [usize::from(x >= x0 + size / 2) + 2 * usize::from(y >= y0 + size / 2)];
+                    let c = at(x, y);
                     for k in 0..3 {
-                        q[k] += data[i * 3 + k] as f64;
+                        mean[k] += c[k] as f64;
+                    }
+                    facing += nrm.dot(up);
+                    centre += mid.coords;
+                    let i = u.at.y.floor() as usize * n + u.at.x.floor() as usize;
+                    let best = res.best_photo[i];
+                    let px = match memo {
+                        Some((mf, mb, px)) if mf == u.face && mb == best => px,
+                        _ => {
+                            let px = match eyes.get(best as usize) {
+                                Some(eye) if best != NO_PHOTO => {
+                                    pixels_per_texel(eye, &mid, &nrm, tpu)
+                                }
+                                _ => 0.0,
+                            };
+                            memo = Some((u.face, best, px));
+                            px
+                        }
+                    };
+                    sharpness = sharpness.min(px);
+                    let (xa, xb) = (x.max(lag) - lag, (x + lag).min(size - 1));
+                    let (ya, yb) = (y.max(lag) - lag, (y + lag).min(size - 1));
+                    let around = (luma(xa, y) + luma(xb, y) + luma(x, ya) + luma(x, yb)) / 4.0;
+                    detail += (crate::planar::luma(&c) - around).powi(2);
+                    let q = &mut quad[usize::from(x >= size / 2) + 2 * usize::from(y >= size / 2)];
+                    for k in 0..3 {
+                        q[k] += c[k] as f64;
                     }
                     q[3] += 1.0;
                     count += 1;
@@ -225,19 +200,27 @@ pub(super) fn candidates(
                 }
             }
             Some(Candidate {
+                square: sq,
                 spread,
-                x: x0,
-                y: y0,
-                size,
                 mean: mean.map(|v| (v / c) as f32),
                 facing_up: facing / c,
                 centre: Point3::from(centre / c),
                 detail: detail / c,
-                m: m / c,
                 sharpness,
             })
         })
         .collect()
+}
+
+/// The colours of `c`'s square, row-major: the exemplar it gives.
+pub(super) fn texels(mesh: &Mesh, atlas: &Atlas, res: &Resampled, c: &Candidate) -> Vec<[f32; 3]> {
+    let data: &[f32] = res.color.as_raw();
+    // The square was flattened when it became a candidate: the same inputs give it again.
+    let under = c
+        .square
+        .flatten(mesh, atlas, &res.source)
+        .unwrap_or_default();
+    under.iter().map(|u| colour(data, u)).collect()
 }
 
 /// Share of the sharpest candidates' sharpness (their 90th percentile) a candidate needs to be
@@ -450,15 +433,12 @@ mod tests {
 
     fn cand(sharpness: f64) -> Candidate {
         Candidate {
-            x: 0,
-            y: 0,
-            size: 16,
+            square: Square::bare(Point3::origin(), 16),
             mean: [0.5; 3],
             facing_up: 0.0,
             centre: Point3::origin(),
             detail: 1.0,
             spread: 0.0,
-            m: Matrix2::identity(),
             sharpness,
         }
     }

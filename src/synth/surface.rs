@@ -415,7 +415,7 @@ pub(super) struct Layout {
 }
 
 /// Distance from `p` to the triangle `t` (closest point by regions, Ericson 5.1.5).
-fn point_triangle(p: &Point3<f64>, t: &[Point3<f64>; 3]) -> f64 {
+pub(super) fn point_triangle(p: &Point3<f64>, t: &[Point3<f64>; 3]) -> f64 {
     let (a, b, c) = (t[0], t[1], t[2]);
     let (ab, ac, ap) = (b - a, c - a, p - a);
     let (d1, d2) = (ab.dot(&ap), ac.dot(&ap));

@@ -82,13 +82,17 @@ fn an_unseen_side_gets_texture_not_a_smear() {
         unseen_scores(&scene, &dir.path().join("stage6")),
         unseen_scores(&scene, &dir.path().join("vertex")),
     );
-    // Nothing uncovered; detail where the vertex-colour fill is a smear, and texture
-    // statistics closer to the truth's.
+    // Nothing uncovered; detail where the vertex-colour fill is a smear, texture statistics
+    // and the mean colour closer to the truth's. The detail comes from the surface's own
+    // texture as these 480x360 photographs saw it: the seen surface itself scores about 0.8
+    // of the truth's detail, stage 6 0.71 and the vertex fill 0.54 (docs/decisions.md,
+    // "Exemplars flattened from the surface").
     assert!(a.coverage > 0.999, "{a:?}");
     assert!(
-        a.detail_ratio > b.detail_ratio + 0.2,
+        a.detail_ratio > b.detail_ratio + 0.12,
         "stage 6 {a:?} vertex fill {b:?}"
     );
+    assert!(a.delta_e < b.delta_e, "stage 6 {a:?} vertex fill {b:?}");
     assert!(a.detail_ratio < 1.6, "{a:?}");
     assert!(
         a.gram_distance < b.gram_distance,
