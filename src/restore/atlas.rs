@@ -24,6 +24,9 @@ pub struct Unrestored {
     pub feature_scale: f64,
     /// Every region handed to stage 6: deep, too large or unreachable, as faces.
     pub regions: Vec<UnseenRegion>,
+    /// The mesh's face adjacency ([`crate::mesh::topology::face_adjacency`]) when there are
+    /// regions (found with it), so that stage 6 need not build it again; empty otherwise.
+    pub adjacency: Vec<[u32; 3]>,
 }
 
 /// What stage 5 did to each texel: grey where photographs coloured it, green where it was
@@ -160,6 +163,7 @@ pub fn restore_atlas(
         deep: deep_mask,
         feature_scale,
         regions: Vec::new(),
+        adjacency: Vec::new(),
     };
     let texels_left_unreachable = left.unreachable.count() as u64;
     drop(reach);
@@ -308,19 +312,19 @@ pub fn restore_atlas(
     report.texels_left_deep = left.deep.count() as u64;
     report.feature_scale = feature_scale;
     // Texels left imply unseen texels, so the topology is there.
-    if let Some((adj, (hidden, _))) = topo
-        .as_ref()
-        .filter(|_| left.deep.count() + left.too_large.count() + left.unreachable.count() > 0)
+    if let Some((adj, (hidden, _))) =
+        topo.filter(|_| left.deep.count() + left.too_large.count() + left.unreachable.count() > 0)
     {
         left.regions = regions::handed_over(
             mesh,
             atlas,
-            adj,
-            hidden,
+            &adj,
+            &hidden,
             &deep,
             &left.too_large,
             &left.unreachable,
         );
+        left.adjacency = adj;
     }
     res.color = image::Rgb32FImage::from_raw(n as u32, n as u32, data).expect("n * n * 3 values");
     crate::resample::refill_gutter(res, gutter_fill);

@@ -364,14 +364,21 @@ pub fn synthesize(
         }
     }
     let mut t = Instant::now();
-    let adj = crate::mesh::topology::face_adjacency(mesh);
+    // Restoration found the regions with the face adjacency and hands it over with them.
+    let built;
+    let adj: &[[u32; 3]] = if left.adjacency.len() == nf {
+        &left.adjacency
+    } else {
+        built = crate::mesh::topology::face_adjacency(mesh);
+        &built
+    };
     let low = surface::low_band(
         mesh,
         atlas,
         &res.color,
         &res.source,
         &member,
-        &adj,
+        adj,
         &res.vertex_colors,
     );
     report.seconds_low_band = t.elapsed().as_secs_f64();
@@ -398,9 +405,9 @@ pub fn synthesize(
     let side = (((2.0 * radius + 8.0) / 8.0).ceil() * 8.0) as usize;
     let lag = (sigma.round() as usize).max(1);
     let (cands, floor) = if user.is_none() {
-        let mut cands = pick::candidates(mesh, &adj, atlas, res, &eyes, &up, side, lag);
+        let mut cands = pick::candidates(mesh, adj, atlas, res, &eyes, &up, side, lag);
         if cands.is_empty() {
-            cands = pick::candidates(mesh, &adj, atlas, res, &eyes, &up, side / 2, lag);
+            cands = pick::candidates(mesh, adj, atlas, res, &eyes, &up, side / 2, lag);
         }
         pick::sharp_only(cands)
     } else {
@@ -411,7 +418,7 @@ pub fn synthesize(
         .iter()
         .map(|r| {
             let all =
-                pick::photographed_texels(atlas, &res.source, &rim_faces(&adj, &member, &r.faces));
+                pick::photographed_texels(atlas, &res.source, &rim_faces(adj, &member, &r.faces));
             pick::sharp_texels(mesh, atlas, res, &eyes, &up, all, floor)
         })
         .collect();
@@ -529,7 +536,7 @@ pub fn synthesize(
                 let rim = rim_detail(mesh, atlas, res, rim, &low, s);
                 surface::grow_patches(
                     mesh,
-                    &adj,
+                    adj,
                     &r.faces,
                     &slot,
                     s,

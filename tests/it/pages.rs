@@ -72,19 +72,25 @@ fn pages_hold_every_face_once_and_read_back_as_udim_tiles() {
     }
     let obj = held_out(&dir.path().join("paged/model.obj"));
     let glb = held_out(&dir.path().join("paged/model.glb"));
-    assert!((obj.psnr - glb.psnr).abs() < 1e-6, "{obj:?} {glb:?}");
-    // One page at the same cap has fewer texels and scores lower (measured: 34.70 against
-    // 34.76 dB); a limit of two pages sits between.
+    // The OBJ keeps the positions' 64-bit values and the GLB rounds them to 32 bits, so a
+    // pixel on a triangle's edge may render apart (1.5e-6 dB on one layout, 2026-12-05); a
+    // wrong or missing tile costs whole decibels.
+    assert!((obj.psnr - glb.psnr).abs() < 1e-4, "{obj:?} {glb:?}");
+    // One page at the same cap has fewer texels and scores lower; a limit of two pages
+    // gives two.
     opts.max_pages = Some(1);
     let one = common::texture_into(&scene, &opts, &dir.path().join("one"));
     assert_eq!(one.pages.len(), 1);
     assert!(dir.path().join("one/model.png").is_file());
     let one = held_out(&dir.path().join("one/model.obj"));
-    assert!(obj.psnr > one.psnr, "pages {obj:?} one page {one:?}");
+    // The extra texels show in the correlation; PSNR moves by a few hundredths of a dB with
+    // the charts' layout either way (pages 34.76 against 34.70 dB on one layout, 34.734
+    // against 34.747 on another, 2026-12-05), so it is only held within that.
     assert!(
         obj.one_minus_ncc < one.one_minus_ncc,
         "pages {obj:?} one page {one:?}"
     );
+    assert!(obj.psnr > one.psnr - 0.05, "pages {obj:?} one page {one:?}");
     opts.max_pages = Some(2);
     let two = common::texture_into(&scene, &opts, &dir.path().join("two"));
     assert_eq!(two.pages.len(), 2);
