@@ -477,7 +477,12 @@ pub fn synthesize(
                         Some(i) => i,
                         None => {
                             let size = c.square.size;
-                            let texels = pick::texels(mesh, atlas, res, c);
+                            let texels = pick::texels(mesh, atlas, res, c).ok_or_else(|| {
+                                Error::Internal(format!(
+                                    "stage 6's exemplar at face {} no longer flattens",
+                                    c.square.seed
+                                ))
+                            })?;
                             if opts.keep_patch_map {
                                 let img = image::Rgb32FImage::from_fn(
                                     size as u32,

@@ -160,7 +160,10 @@ pub(super) fn candidates(
                     }
                     facing += nrm.dot(up);
                     centre += mid.coords;
-                    let i = u.at.y.floor() as usize * n + u.at.x.floor() as usize;
+                    // The texel under the point (its taps lie on the page, so clamping
+                    // only matters half a texel from the page's edge).
+                    let texel = |v: f64| (v.floor().max(0.0) as usize).min(n - 1);
+                    let i = texel(u.at.y) * n + texel(u.at.x);
                     let best = res.best_photo[i];
                     let px = match memo {
                         Some((mf, mb, px)) if mf == u.face && mb == best => px,
@@ -213,14 +216,16 @@ pub(super) fn candidates(
 }
 
 /// The colours of `c`'s square, row-major: the exemplar it gives.
-pub(super) fn texels(mesh: &Mesh, atlas: &Atlas, res: &Resampled, c: &Candidate) -> Vec<[f32; 3]> {
+/// `None` only if `res` changed since [`candidates`] flattened it.
+pub(super) fn texels(
+    mesh: &Mesh,
+    atlas: &Atlas,
+    res: &Resampled,
+    c: &Candidate,
+) -> Option<Vec<[f32; 3]>> {
     let data: &[f32] = res.color.as_raw();
-    // The square was flattened when it became a candidate: the same inputs give it again.
-    let under = c
-        .square
-        .flatten(mesh, atlas, &res.source)
-        .unwrap_or_default();
-    under.iter().map(|u| colour(data, u)).collect()
+    let under = c.square.flatten(mesh, atlas, &res.source)?;
+    Some(under.iter().map(|u| colour(data, u)).collect())
 }
 
 /// Share of the sharpest candidates' sharpness (their 90th percentile) a candidate needs to be
