@@ -4,7 +4,7 @@
 //! content depends on the surface and the photographs, not on how the atlas happens to lay
 //! out and cut the charts: a square may span several charts.
 
-use super::surface::{point_triangle, tangent_up};
+use super::surface::{centroid, point_triangle, tangent_up};
 use crate::atlas::Atlas;
 use crate::mesh::topology::NO_FACE;
 use crate::mesh::{FaceId, Mesh};
@@ -63,11 +63,7 @@ pub(super) fn seeds(mesh: &Mesh, atlas: &Atlas, source: &[u8], cell: f64, most: 
             let t = atlas.face_texels(f)?;
             let at = (t[0] + t[1] + t[2]) / 3.0;
             taps(atlas, source, f as u32, &at)?;
-            let p = mesh.triangle(FaceId(f as u32));
-            Some((
-                f as u32,
-                Point3::from((p[0].coords + p[1].coords + p[2].coords) / 3.0),
-            ))
+            Some((f as u32, centroid(mesh, f as u32)))
         })
         .collect();
     let mut cell = cell.max(1e-12);
@@ -104,8 +100,7 @@ pub(super) fn square(
     tpu: f64,
     up: &Vector3<f64>,
 ) -> Option<Square> {
-    let tri = mesh.triangle(FaceId(seed));
-    let centre = Point3::from((tri[0].coords + tri[1].coords + tri[2].coords) / 3.0);
+    let centre = centroid(mesh, seed);
     let reach = size as f64 / tpu * std::f64::consts::FRAC_1_SQRT_2;
     let mut faces = vec![seed];
     let mut seen = rustc_hash::FxHashSet::default();

@@ -18,7 +18,7 @@ use crate::mesh::{FaceId, Mesh};
 use crate::resample::Resampled;
 use crate::restore::{Handover, Unrestored};
 use crate::rng::SplitMix64;
-use nalgebra::{Matrix2, Vector3};
+use nalgebra::Vector3;
 use serde::Serialize;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -426,10 +426,7 @@ pub fn synthesize(
         let (w, h) = (img.width() as usize, img.height() as usize);
         let texels: Vec<[f32; 3]> = img.pixels().map(|p| p.0).collect();
         let ex = plane::Exemplar::new(w, h, &detail(&texels, w, h, sigma))?;
-        sources.push(Source {
-            ex,
-            m: Matrix2::new(tpu, 0.0, 0.0, -tpu),
-        });
+        sources.push(Source::upright(ex, tpu));
         used.extend(left.regions.iter().map(|_| (ExemplarUsed::File, Some(0))));
     } else {
         let mut chosen: Vec<u32> = Vec::new();
@@ -496,11 +493,7 @@ pub fn synthesize(
                                 size,
                                 &detail(&texels, size, size, sigma),
                             )?;
-                            let tpu = c.square.tpu;
-                            sources.push(Source {
-                                ex,
-                                m: Matrix2::new(tpu, 0.0, 0.0, -tpu),
-                            });
+                            sources.push(Source::upright(ex, c.square.tpu));
                             chosen.push(key);
                             chosen.len() - 1
                         }

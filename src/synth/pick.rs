@@ -4,7 +4,7 @@
 //! the square most like its rim (orientation, colour, place).
 
 use super::flat::{colour, seeds, square, Square};
-use super::surface::tangent_up;
+use super::surface::{centroid, tangent_up};
 use crate::atlas::Atlas;
 use crate::camera::PosedCamera;
 use crate::mesh::{FaceId, Mesh};
@@ -65,19 +65,11 @@ fn pixels_per_texel(eye: &Eye, p: &Point3<f64>, n: &Vector3<f64>, tpu: f64) -> f
     eye.focal * cos / (cam.z * tpu)
 }
 
-/// [`pixels_per_texel`] for texel-owning face at `mid` (unit normal `n`, tangent-to-texel
-/// map `fm`) as photograph `best` (an index of `eyes`, or [`NO_PHOTO`]: 0) saw it.
-fn seen_sharpness(
-    eyes: &[Eye],
-    best: u16,
-    mid: &Point3<f64>,
-    n: &Vector3<f64>,
-    fm: &Matrix2<f64>,
-) -> f64 {
+/// [`pixels_per_texel`] for a face at `mid` (unit normal `n`, `tpu` texels per scene unit)
+/// as photograph `best` (an index of `eyes`, or [`NO_PHOTO`]: 0) saw it.
+fn seen_sharpness(eyes: &[Eye], best: u16, mid: &Point3<f64>, n: &Vector3<f64>, tpu: f64) -> f64 {
     match eyes.get(best as usize) {
-        Some(eye) if best != NO_PHOTO => {
-            pixels_per_texel(eye, mid, n, fm.determinant().abs().sqrt())
-        }
+        Some(eye) if best != NO_PHOTO => pixels_per_texel(eye, mid, n, tpu),
         _ => 0.0,
     }
 }
@@ -152,8 +144,7 @@ pub(super) fn candidates(
                     let u = &under[y * size + x];
                     let f = FaceId(u.face);
                     let nrm = mesh.face_normal_area(f).normalize();
-                    let tri = mesh.triangle(f);
-                    let mid = Point3::from((tri[0].coords + tri[1].coords + tri[2].coords) / 3.0);
+                    let mid = centroid(mesh, u.face);
                     let c = at(x, y);
                     for k in 0..3 {
                         mean[k] += c[k] as f64;
@@ -168,12 +159,7 @@ pub(super) fn candidates(
                     let px = match memo {
                         Some((mf, mb, px)) if mf == u.face && mb == best => px,
                         _ => {
-                            let px = match eyes.get(best as usize) {
-                                Some(eye) if best != NO_PHOTO => {
-                                    pixels_per_texel(eye, &mid, &nrm, tpu)
-                                }
-                                _ => 0.0,
-                            };
+                            let px = seen_sharpness(eyes, best, &mid, &nrm, tpu);
                             memo = Some((u.face, best, px));
                             px
                         }
@@ -276,11 +262,11 @@ pub(super) fn sharp_texels(
             let px = match memo {
                 Some((mf, mb, px)) if mf == f && mb == best => px,
                 _ => {
-                    let tri = mesh.triangle(FaceId(f));
-                    let mid = Point3::from((tri[0].coords + tri[1].coords + tri[2].coords) / 3.0);
+                    let mid = centroid(mesh, f);
                     let n = mesh.face_normal_area(FaceId(f)).normalize();
-                    let px = face_map(mesh, atlas, f as usize, up)
-                        .map_or(0.0, |fm| seen_sharpness(eyes, best, &mid, &n, &fm));
+                    let px = face_map(mesh, atlas, f as usize, up).map_or(0.0, |fm| {
+                        seen_sharpness(eyes, best, &mid, &n, fm.determinant().abs().sqrt())
+                    });
                     memo = Some((f, best, px));
                     px
                 }

@@ -23,6 +23,15 @@ pub(super) struct Source {
 }
 
 impl Source {
+    /// An exemplar laid on the tangent plane upright: `tpu` texels per scene unit, columns
+    /// along right, rows down (its top towards up).
+    pub(super) fn upright(ex: Exemplar, tpu: f64) -> Source {
+        Source {
+            ex,
+            m: Matrix2::new(tpu, 0.0, 0.0, -tpu),
+        }
+    }
+
     /// Exemplar texels per scene unit (geometric mean over both axes).
     pub(super) fn density(&self) -> f64 {
         self.m.determinant().abs().sqrt().max(1e-12)
@@ -49,7 +58,8 @@ impl Patch {
     }
 }
 
-fn centroid(mesh: &Mesh, f: u32) -> Point3<f64> {
+/// Face `f`'s centroid.
+pub(super) fn centroid(mesh: &Mesh, f: u32) -> Point3<f64> {
     let t = mesh.triangle(FaceId(f));
     Point3::from((t[0].coords + t[1].coords + t[2].coords) / 3.0)
 }
