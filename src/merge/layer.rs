@@ -178,8 +178,12 @@ impl Layer {
         let (mut g, mut m) = (Vec::new(), Vec::new());
         if chart.len() > 1 {
             let (w1, h1) = (w.div_ceil(2), h.div_ceil(2));
-            g.push(Plane::zeros(w1, h1, 4));
-            m.push(vec![0f32; w1 * h1]);
+            let (mut g1, mut m1) = (Plane::zeros(w1, h1, 4), vec![0f32; w1 * h1]);
+            // Splats add into these (`crate::io::touch_for_writing`).
+            crate::io::touch_for_writing(&mut g1.d);
+            crate::io::touch_for_writing(&mut m1);
+            g.push(g1);
+            m.push(m1);
         }
         Layer {
             ox,
@@ -324,7 +328,6 @@ impl Layer {
             let (g, m) = (&self.g[l - 1], &self.m[l - 1]);
             let (ox, oy) = (self.ox >> l, self.oy >> l);
             let cw = acc.num[l].w;
-            let (num, den) = (&mut acc.num[l].d, &mut acc.den[l]);
             for y in 0..g.h {
                 for x in 0..g.w {
                     let i = y * g.w + x;
@@ -335,6 +338,8 @@ impl Layer {
                     let v = std::array::from_fn(|k| g.d[4 * i + k] / wg);
                     let band = self.band(l, up, ox + x, oy + y, v);
                     let gi = (oy + y) * cw + ox + x;
+                    acc.ready(l, gi);
+                    let (num, den) = (&mut acc.num[l].d, &mut acc.den[l]);
                     den[gi] += mw;
                     for k in 0..3 {
                         num[3 * gi + k] += mw * band[k];
@@ -346,6 +351,7 @@ impl Layer {
         for (x, y, c, mw) in fine {
             let band = self.band(0, ups.first(), x, y, c);
             let gi = y * cw + x;
+            acc.ready(0, gi);
             if winner_mode {
                 let mean = &mut acc.finest[3 * gi..3 * gi + 3];
                 if mw == f32::INFINITY {
@@ -424,6 +430,8 @@ pub(super) fn reduce_part(
         _ => reduce_rows_any(&src.d, w, c, &cols, &mut tmp),
     }
     let mut out = vec![0f32; dw * dh * c];
+    // Every row is added to (`crate::io::touch_for_writing`).
+    crate::io::touch_for_writing(&mut out);
     let rl = dw * c;
     for y in 0..dh {
         let (idx, wt, n) = taps(y, oy, nh, h);

@@ -88,6 +88,7 @@ pub(super) fn add_photo(
                         _ => continue,
                     }
                     let i = by * ch.w + bx;
+                    acc.ready(0, i);
                     acc.views[i] = acc.views[i].saturating_add(1);
                     if acc.best_w[i] == f16::ZERO {
                         acc.best_w[i] = COARSE_SEEN;
@@ -104,6 +105,7 @@ pub(super) fn add_photo(
             let (x, y) = (x - ch.x0, y - ch.y0);
             let m = mask_of(wt);
             let i = y * ch.w + x;
+            acc.ready(0, i);
             acc.views[i] = acc.views[i].saturating_add(1);
             // Photographs come in order, so ties keep the first: deterministic.
             let rel = relative_weight(wt, reference);

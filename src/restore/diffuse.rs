@@ -66,6 +66,9 @@ fn init_from_coarser(
     let mut cd = vec![0f32; w2 * h2 * ch];
     let mut cknown = vec![false; w2 * h2];
     let mut cdomain = vec![false; w2 * h2];
+    // Every value is added to before it is written (`crate::io::touch_for_writing`).
+    crate::io::touch_for_writing(&mut cd);
+    crate::io::touch_for_writing(&mut cdomain);
     for y2 in 0..h2 {
         for x2 in 0..w2 {
             let j = y2 * w2 + x2;
