@@ -129,9 +129,9 @@ pub(super) fn candidates(
         .par_iter()
         .filter_map(|&seed| {
             let sq = square(mesh, adj, seed, size, tpu, up)?;
-            let under = sq.flatten(mesh, atlas, source)?;
-            let at = |x: usize, y: usize| colour(data, &under[y * size + x]);
-            let luma = |x: usize, y: usize| crate::planar::luma(&at(x, y));
+            let laid = sq.lay(mesh, atlas, source)?;
+            let at = |x: usize, y: usize| laid.under(x, y).map(|u| colour(data, &u));
+            let luma = |x: usize, y: usize| at(x, y).map(|c| crate::planar::luma(&c));
             let (mut mean, mut facing, mut centre, mut count) =
                 ([0f64; 3], 0.0, Vector3::zeros(), 0usize);
             let mut detail = 0.0;
@@ -141,11 +141,11 @@ pub(super) fn candidates(
             let mut memo: Option<(u32, u16, f64)> = None;
             for y in (0..size).step_by(4) {
                 for x in (0..size).step_by(4) {
-                    let u = &under[y * size + x];
+                    let u = laid.under(x, y)?;
                     let f = FaceId(u.face);
                     let nrm = mesh.face_normal_area(f).normalize();
                     let mid = centroid(mesh, u.face);
-                    let c = at(x, y);
+                    let c = colour(data, &u);
                     for k in 0..3 {
                         mean[k] += c[k] as f64;
                     }
@@ -167,7 +167,7 @@ pub(super) fn candidates(
                     sharpness = sharpness.min(px);
                     let (xa, xb) = (x.max(lag) - lag, (x + lag).min(size - 1));
                     let (ya, yb) = (y.max(lag) - lag, (y + lag).min(size - 1));
-                    let around = (luma(xa, y) + luma(xb, y) + luma(x, ya) + luma(x, yb)) / 4.0;
+                    let around = (luma(xa, y)? + luma(xb, y)? + luma(x, ya)? + luma(x, yb)?) / 4.0;
                     detail += (crate::planar::luma(&c) - around).powi(2);
                     let q = &mut quad[usize::from(x >= size / 2) + 2 * usize::from(y >= size / 2)];
                     for k in 0..3 {
