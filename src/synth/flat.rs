@@ -62,7 +62,7 @@ pub(super) fn seeds(mesh: &Mesh, atlas: &Atlas, source: &[u8], cell: f64, most: 
         .filter_map(|f| {
             let t = atlas.face_texels(f)?;
             let at = (t[0] + t[1] + t[2]) / 3.0;
-            taps(atlas, source, f as u32, &at)?;
+            photographed(atlas, source, f as u32, &at).then_some(())?;
             Some((f as u32, centroid(mesh, f as u32)))
         })
         .collect();
@@ -244,7 +244,7 @@ impl Square {
         let under = under
             .into_iter()
             .map(|(_, f, at, steep)| {
-                (f != NO_FACE && !steep && taps(atlas, source, f, &at).is_some()).then_some((f, at))
+                (f != NO_FACE && !steep && photographed(atlas, source, f, &at)).then_some((f, at))
             })
             .collect::<Option<Vec<_>>>()?;
         Some(Laid {
@@ -289,39 +289,61 @@ pub(super) fn taps(
     f: u32,
     at: &Vector2<f64>,
 ) -> Option<[(usize, f64); 4]> {
-    let n = atlas.size as i64;
+    let quad = quad(atlas, source, at)?;
     let chart = atlas.face_chart[f as usize];
-    let (sx, sy) = (at.x - 0.5, at.y - 0.5);
-    let (x0, y0) = (sx.floor(), sy.floor());
-    let (fx, fy) = (sx - x0, sy - y0);
     let mut out = [(0usize, 0f64); 4];
     let mut any = false;
-    for (k, (dx, dy, w)) in [
-        (0, 0, (1.0 - fx) * (1.0 - fy)),
-        (1, 0, fx * (1.0 - fy)),
-        (0, 1, (1.0 - fx) * fy),
-        (1, 1, fx * fy),
-    ]
-    .into_iter()
-    .enumerate()
-    {
-        let (x, y) = (x0 as i64 + dx, y0 as i64 + dy);
-        if x < 0 || y < 0 || x >= n || y >= n {
-            continue;
-        }
-        let i = (y * n + x) as usize;
-        if TexelSource::is_unseen(source[i]) {
-            return None;
-        }
-        let ours = atlas
-            .owner(i)
-            .is_some_and(|g| atlas.face_chart[g as usize] == chart);
-        if ours && source[i] == TexelSource::Photos as u8 {
+    for (k, &(i, w)) in quad.iter().enumerate() {
+        if let Some(i) = i.filter(|&i| ours(atlas, source, chart, i)) {
             out[k] = (i, w);
             any |= w > 0.0;
         }
     }
     any.then_some(out)
+}
+
+/// Whether [`taps`] finds taps at `at` for face `f`, with fewer lookups: the charts of the
+/// texels after the first of `f`'s chart with a weight are not needed.
+fn photographed(atlas: &Atlas, source: &[u8], f: u32, at: &Vector2<f64>) -> bool {
+    let Some(quad) = quad(atlas, source, at) else {
+        return false;
+    };
+    let chart = atlas.face_chart[f as usize];
+    quad.iter()
+        .any(|&(i, w)| w > 0.0 && i.is_some_and(|i| ours(atlas, source, chart, i)))
+}
+
+/// The four texels around atlas point `at` with their bilinear weights (`None` off the page);
+/// `None` if one of them is a texel no photograph saw.
+#[inline]
+fn quad(atlas: &Atlas, source: &[u8], at: &Vector2<f64>) -> Option<[(Option<usize>, f64); 4]> {
+    let n = atlas.size as i64;
+    let (sx, sy) = (at.x - 0.5, at.y - 0.5);
+    let (x0, y0) = (sx.floor(), sy.floor());
+    let (fx, fy) = (sx - x0, sy - y0);
+    let quad = [
+        (0, 0, (1.0 - fx) * (1.0 - fy)),
+        (1, 0, fx * (1.0 - fy)),
+        (0, 1, (1.0 - fx) * fy),
+        (1, 1, fx * fy),
+    ]
+    .map(|(dx, dy, w)| {
+        let (x, y) = (x0 as i64 + dx, y0 as i64 + dy);
+        let inside = x >= 0 && y >= 0 && x < n && y < n;
+        (inside.then(|| (y * n + x) as usize), w)
+    });
+    quad.iter()
+        .all(|&(i, _)| i.is_none_or(|i| !TexelSource::is_unseen(source[i])))
+        .then_some(quad)
+}
+
+/// Whether texel `i` is a photographed texel of chart `chart`.
+#[inline]
+fn ours(atlas: &Atlas, source: &[u8], chart: u32, i: usize) -> bool {
+    source[i] == TexelSource::Photos as u8
+        && atlas
+            .owner(i)
+            .is_some_and(|g| atlas.face_chart[g as usize] == chart)
 }
 
 /// The atlas colour at `u` (a texel [`Square::flatten`] accepted): bilinear over its
