@@ -91,10 +91,6 @@ fn page_size() -> u64 {
     u64::try_from(n).unwrap_or(4096)
 }
 
-/// The smallest page size of the platforms scantex builds for: code that works page by page
-/// with it touches larger pages more than once, which is harmless.
-pub const PAGE: usize = 4096;
-
 /// Makes the memory under `s` resident by writing to it first. Zeroed memory fresh from the
 /// system (large `vec![0; n]`) is mapped on first touch; if that touch is a read, as in `+=`,
 /// the kernel maps its shared zero page and the write right after faults a second time and
@@ -103,6 +99,9 @@ pub const PAGE: usize = 4096;
 /// Values are unchanged; pages already resident cost one atomic operation each.
 pub fn touch_for_writing<T>(s: &mut [T]) {
     use std::sync::atomic::{AtomicU8, Ordering};
+    // The smallest page size of the platforms scantex builds for: larger pages are touched
+    // more than once, which is harmless.
+    const PAGE: usize = 4096;
     let bytes = std::mem::size_of_val(s);
     if bytes == 0 {
         return;

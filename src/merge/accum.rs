@@ -27,52 +27,14 @@ pub(super) struct ChartAcc {
     /// [`Masks::Paper`]: the weighted mean of the photographs (stage 3's texture), which the
     /// complement of the masks carries.
     pub(super) avg: Option<Vec<[f32; 4]>>,
-    /// The pages of the arrays above written so far ([`ChartAcc::ready`]).
-    written: Written,
+    /// Per level, one bit per block of [`BLOCK`] texels: set once the block's memory in
+    /// every array above has been made writable ([`ChartAcc::ready`]).
+    written: Vec<Vec<u64>>,
 }
 
-/// Which 4 KB pages of a zeroed array have been written. Zeroed memory fresh from the system
-/// is mapped on first touch; the merge's first touch of a texel is a `+=`, whose read maps the
-/// kernel's shared zero page, and the write right after faults again and flushes every core's
-/// TLB (an interrupt to the other cores per page: 3-4% of the merge's CPU time). A page's
-/// first access is made a write instead ([`crate::io::touch_for_writing`]); pages no texel is
-/// written in (other charts' texels and gutter in the chart's rectangle) stay unmapped.
-#[derive(Default)]
-struct Pages(Vec<u64>);
-
-impl Pages {
-    fn of<T>(v: &[T]) -> Pages {
-        let pages = std::mem::size_of_val(v) / crate::io::PAGE + 2;
-        Pages(vec![0; pages.div_ceil(64)])
-    }
-
-    /// Makes elements `a..b` (not empty) of `v`, the array these pages cover, writable.
-    #[inline]
-    fn ready<T>(&mut self, v: &mut [T], a: usize, b: usize) {
-        let base = v.as_ptr() as usize;
-        for i in [a, b - 1] {
-            let page =
-                (base + i * std::mem::size_of::<T>()) / crate::io::PAGE - base / crate::io::PAGE;
-            let (w, bit) = (page / 64, page % 64);
-            if self.0[w] >> bit & 1 == 0 {
-                crate::io::touch_for_writing(&mut v[i..=i]);
-                self.0[w] |= 1 << bit;
-            }
-        }
-    }
-}
-
-/// [`Pages`] for each array of a [`ChartAcc`].
-#[derive(Default)]
-struct Written {
-    num: Vec<Pages>,
-    den: Vec<Pages>,
-    finest: Pages,
-    finest_w: Pages,
-    best_w: Pages,
-    views: Pages,
-    avg: Pages,
-}
+/// Texels per block of [`ChartAcc::ready`]: small, so that a block's memory in any array
+/// (at most 192 bytes) seldom reaches onto a page no texel is written in.
+const BLOCK: usize = 16;
 
 impl ChartAcc {
     pub(super) fn new(ch: &Chart, paper: bool, winner_mode: bool) -> Self {
@@ -112,42 +74,57 @@ impl ChartAcc {
             best: vec![NO_PHOTO; n],
             views: vec![0; n],
             avg: paper.then(|| vec![[0.0; 4]; n]),
-            written: Written::default(),
+            written: Vec::new(),
         };
-        acc.written = Written {
-            num: acc.num.iter().map(|p| Pages::of(&p.d)).collect(),
-            den: acc.den.iter().map(|d| Pages::of(d)).collect(),
-            finest: Pages::of(&acc.finest),
-            finest_w: Pages::of(&acc.finest_w),
-            best_w: Pages::of(&acc.best_w),
-            views: Pages::of(&acc.views),
-            avg: acc.avg.as_deref().map_or_else(Pages::default, Pages::of),
-        };
+        acc.written = acc
+            .num
+            .iter()
+            .map(|p| vec![0; (p.w * p.h).div_ceil(BLOCK).div_ceil(64)])
+            .collect();
         acc
     }
 
-    /// Makes texel `i` of level `l` writable in every array ([`Pages`]); call before the
-    /// first write of a texel.
+    /// Makes texel `i` of level `l` writable in every array; call before the first write of
+    /// a texel. Zeroed memory fresh from the system is mapped on first touch; the merge's
+    /// first touch of a texel is a `+=`, whose read maps the kernel's shared zero page, and the
+    /// write right after faults again and flushes every core's TLB (an interrupt to the other
+    /// cores per page: 3-4% of the merge's CPU time). The first access to the memory of the
+    /// texel's block is made a write instead ([`crate::io::touch_for_writing`]); pages far
+    /// from any texel written (other charts' texels and gutter in the chart's rectangle) stay
+    /// unmapped.
     #[inline]
     pub(super) fn ready(&mut self, l: usize, i: usize) {
-        let w = &mut self.written;
+        let b = i / BLOCK;
+        let (word, bit) = (b / 64, b % 64);
+        if self.written[l][word] >> bit & 1 == 1 {
+            return;
+        }
+        self.written[l][word] |= 1 << bit;
+        self.ready_block(l, b * BLOCK);
+    }
+
+    /// The work of [`ChartAcc::ready`] for the block from texel `a` of level `l`.
+    #[cold]
+    fn ready_block(&mut self, l: usize, a: usize) {
+        use crate::io::touch_for_writing as touch;
+        let b = (a + BLOCK).min(self.num[l].w * self.num[l].h);
         if !self.den[l].is_empty() {
-            w.den[l].ready(&mut self.den[l], i, i + 1);
-            w.num[l].ready(&mut self.num[l].d, 3 * i, 3 * i + 3);
+            touch(&mut self.den[l][a..b]);
+            touch(&mut self.num[l].d[3 * a..3 * b]);
         }
         if l > 0 {
             return;
         }
-        w.views.ready(&mut self.views, i, i + 1);
-        w.best_w.ready(&mut self.best_w, i, i + 1);
+        touch(&mut self.views[a..b]);
+        touch(&mut self.best_w[a..b]);
         if !self.finest.is_empty() {
-            w.finest.ready(&mut self.finest, 3 * i, 3 * i + 3);
+            touch(&mut self.finest[3 * a..3 * b]);
         }
         if !self.finest_w.is_empty() {
-            w.finest_w.ready(&mut self.finest_w, i, i + 1);
+            touch(&mut self.finest_w[a..b]);
         }
         if let Some(avg) = &mut self.avg {
-            w.avg.ready(avg, i, i + 1);
+            touch(&mut avg[a..b]);
         }
     }
 
