@@ -402,6 +402,59 @@ mod tests {
     /// whether or not it spans a chart border; squares reaching past the tube's ends are
     /// refused.
     #[test]
+    fn the_quick_check_agrees_with_the_taps_everywhere() {
+        // A tube's atlas with a band of unseen texels, others photographed or empty: at
+        // points all over the page (texel centres, edges and corners, off the page), for the
+        // face owning the texel and for a face of another chart, `photographed` says what
+        // `taps` finds.
+        let opts = AtlasOptions {
+            pack: crate::atlas::pack::PackOptions {
+                size: 128,
+                gutter: 2,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let (_, atlas, _) = build(tube(), &opts).unwrap();
+        let n = atlas.size as usize;
+        let source: Vec<u8> = (0..n * n)
+            .map(|i| match (atlas.owner(i), i % 7) {
+                (None, _) => TexelSource::Empty as u8,
+                (Some(_), _) if (i / n) % 40 < 3 => TexelSource::Red as u8,
+                (Some(_), 0) => TexelSource::Empty as u8,
+                _ => TexelSource::Photos as u8,
+            })
+            .collect();
+        let other = |f: u32| {
+            (0..atlas.face_chart.len() as u32)
+                .find(|&g| atlas.face_chart[g as usize] != atlas.face_chart[f as usize])
+                .unwrap()
+        };
+        let (mut yes, mut no) = (0, 0);
+        for i in 0..n * n {
+            let Some(f) = atlas.owner(i) else { continue };
+            let (x, y) = ((i % n) as f64, (i / n) as f64);
+            for (dx, dy) in [(0.5, 0.5), (0.0, 0.0), (0.25, 0.9), (1.0, 0.5), (-0.7, 0.2)] {
+                let at = Vector2::new(x + dx, y + dy);
+                for g in [f, other(f)] {
+                    let quick = photographed(&atlas, &source, g, &at);
+                    assert_eq!(
+                        quick,
+                        taps(&atlas, &source, g, &at).is_some(),
+                        "{g} at {at}"
+                    );
+                    if quick {
+                        yes += 1;
+                    } else {
+                        no += 1;
+                    }
+                }
+            }
+        }
+        assert!(yes > 1000 && no > 1000, "{yes} accepted, {no} refused");
+    }
+
+    #[test]
     fn squares_show_the_surface_under_them_across_chart_borders() {
         let opts = AtlasOptions {
             pack: crate::atlas::pack::PackOptions {
