@@ -397,25 +397,27 @@ mod tests {
         [w(12.0 * a), w(TAU * z / 0.5), 0.5]
     }
 
-    /// Every square the seeds give on a painted tube shows the paint where the surface under
-    /// each of its texels lies (columns along the arc, rows down z, at the atlas's density),
-    /// whether or not it spans a chart border; squares reaching past the tube's ends are
-    /// refused.
+    /// [`tube`] and its atlas on a page of `size` texels with gutters of `gutter`.
+    fn tube_atlas(size: u32, gutter: u32) -> (Mesh, Atlas) {
+        let opts = AtlasOptions {
+            pack: crate::atlas::pack::PackOptions {
+                size,
+                gutter,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let (mesh, atlas, _) = build(tube(), &opts).unwrap();
+        (mesh, atlas)
+    }
+
     #[test]
     fn the_quick_check_agrees_with_the_taps_everywhere() {
         // A tube's atlas with a band of unseen texels, others photographed or empty: at
         // points all over the page (texel centres, edges and corners, off the page), for the
         // face owning the texel and for a face of another chart, `photographed` says what
         // `taps` finds.
-        let opts = AtlasOptions {
-            pack: crate::atlas::pack::PackOptions {
-                size: 128,
-                gutter: 2,
-                ..Default::default()
-            },
-            ..Default::default()
-        };
-        let (_, atlas, _) = build(tube(), &opts).unwrap();
+        let (_, atlas) = tube_atlas(128, 2);
         let n = atlas.size as usize;
         let source: Vec<u8> = (0..n * n)
             .map(|i| match (atlas.owner(i), i % 7) {
@@ -454,17 +456,13 @@ mod tests {
         assert!(yes > 1000 && no > 1000, "{yes} accepted, {no} refused");
     }
 
+    /// Every square the seeds give on a painted tube shows the paint where the surface under
+    /// each of its texels lies (columns along the arc, rows down z, at the atlas's density),
+    /// whether or not it spans a chart border; squares reaching past the tube's ends are
+    /// refused.
     #[test]
     fn squares_show_the_surface_under_them_across_chart_borders() {
-        let opts = AtlasOptions {
-            pack: crate::atlas::pack::PackOptions {
-                size: 256,
-                gutter: 4,
-                ..Default::default()
-            },
-            ..Default::default()
-        };
-        let (mesh, atlas, _) = build(tube(), &opts).unwrap();
+        let (mesh, atlas) = tube_atlas(256, 4);
         let n = atlas.size as usize;
         let mut source = vec![TexelSource::Empty as u8; n * n];
         let mut data = vec![0f32; n * n * 3];
