@@ -112,7 +112,7 @@ fn an_unseen_side_gets_texture_not_a_smear() {
     );
     // Nothing uncovered; detail where the vertex-colour fill is a smear, texture statistics
     // and the mean colour closer to the truth's. The detail comes from the surface's own
-    // texture as these 480x360 photographs saw it: stage 6 scores 0.52 of the truth's detail
+    // texture as these 480x360 photographs saw it: stage 6 scores 0.48 of the truth's detail
     // and the vertex fill 0.27 (0.71 and 0.54 when the scores still read the rendering's
     // black background past the outline; docs/decisions.md, "Exemplars flattened from the
     // surface" and "Unseen scores over the photograph's background").
