@@ -25,9 +25,10 @@ fn one_sided_torus(dir: &Path) {
     scantex::sample::generate_to(None, &opts, dir).unwrap();
 }
 
-fn unseen_scores(scene: &Path, out: &Path) -> UnseenScore {
+/// `mesh`'s mean scores where no input photograph of the one-sided `scene` saw the surface.
+fn unseen_scores(scene: &Path, mesh: &Path) -> UnseenScore {
     evaluate_scene(
-        &out.join("model.obj"),
+        mesh,
         &SceneSpec {
             dir: Some(scene.join("heldout")),
             ..Default::default()
@@ -49,19 +50,7 @@ fn the_true_texture_scores_as_the_truth_where_no_photograph_saw() {
     let dir = tempfile::tempdir().unwrap();
     let scene = dir.path().join("scene");
     one_sided_torus(&scene);
-    let s = evaluate_scene(
-        &scene.join("truth/model.glb"),
-        &SceneSpec {
-            dir: Some(scene.join("heldout")),
-            ..Default::default()
-        },
-        &EvalOptions { gain_fit: true },
-    )
-    .unwrap()
-    .mean
-    .unwrap()
-    .unseen
-    .unwrap();
+    let s = unseen_scores(&scene, &scene.join("truth/model.glb"));
     assert!(s.coverage > 0.999, "{s:?}");
     assert!((s.detail_ratio - 1.0).abs() < 0.05, "{s:?}");
     assert!(s.gram_distance < 0.1, "{s:?}");
@@ -107,8 +96,8 @@ fn an_unseen_side_gets_texture_not_a_smear() {
     let without = common::texture_into(&scene, &opts, &dir.path().join("vertex"));
     assert!(without.report.pages[0].synth.is_none());
     let (a, b) = (
-        unseen_scores(&scene, &dir.path().join("stage6")),
-        unseen_scores(&scene, &dir.path().join("vertex")),
+        unseen_scores(&scene, &dir.path().join("stage6/model.obj")),
+        unseen_scores(&scene, &dir.path().join("vertex/model.obj")),
     );
     // Nothing uncovered; detail where the vertex-colour fill is a smear, texture statistics
     // and the mean colour closer to the truth's. The detail comes from the surface's own
