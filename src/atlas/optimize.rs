@@ -110,8 +110,9 @@ struct Face {
     min_hb: f64,
 }
 
-/// A tentative move: the new energy, stretch sum, area sum and per-face terms.
-type Move = (f64, f64, f64, Vec<(f64, f64)>);
+/// A tentative move: the new energy, stretch sum and area sum (its per-face terms go into a
+/// buffer the caller reuses: one allocation per try was a malloc per probe of every sweep).
+type Move = (f64, f64, f64);
 
 /// The stretch term `L2(T)^2 w A3` and the UV area of a face, or `None` if the barrier is hit.
 fn terms(f: &Face, q: [Vector2<f64>; 3]) -> Option<(f64, f64)> {
@@ -496,9 +497,10 @@ pub fn optimize(mesh: &Mesh, map: &mut ChartMap, opts: &StretchOptions) -> f64 {
                     uv: &[Vector2<f64>],
                     term: &[(f64, f64)],
                     sl: f64,
-                    sa: f64|
+                    sa: f64,
+                    new_terms: &mut Vec<(f64, f64)>|
      -> Option<Move> {
-        let mut new_terms = Vec::with_capacity(incident[v].len());
+        new_terms.clear();
         let (mut dl, mut da) = (0.0, 0.0);
         for &fi in &incident[v] {
             let f = &faces[fi];
@@ -509,8 +511,9 @@ pub fn optimize(mesh: &Mesh, map: &mut ChartMap, opts: &StretchOptions) -> f64 {
             new_terms.push(t);
         }
         let (nl, na) = (sl + dl, sa + da);
-        Some((nl * na, nl, na, new_terms))
+        Some((nl * na, nl, na))
     };
+    let mut nt: Vec<(f64, f64)> = Vec::new();
     let mut energy = sl * sa;
     for _ in 0..opts.sweeps {
         let start_energy = energy;
@@ -539,8 +542,9 @@ pub fn optimize(mesh: &Mesh, map: &mut ChartMap, opts: &StretchOptions) -> f64 {
             let dir = -grad.normalize();
             let mut step = 0.5 * scale;
             for _ in 0..10 {
-                if let Some((e, nl, na, nt)) = try_move(v, uv[v] + dir * step, uv, &term, sl, sa) {
-                    if e < energy && !crosses(v, uv[v] + dir * step, uv, &grid) {
+                let probe = uv[v] + dir * step;
+                if let Some((e, nl, na)) = try_move(v, probe, uv, &term, sl, sa, &mut nt) {
+                    if e < energy && !crosses(v, probe, uv, &grid) {
                         for &ei in &on_boundary[v] {
                             grid.remove(ei, boundary[ei], uv);
                         }
@@ -548,7 +552,7 @@ pub fn optimize(mesh: &Mesh, map: &mut ChartMap, opts: &StretchOptions) -> f64 {
                         for &ei in &on_boundary[v] {
                             grid.insert(ei, boundary[ei], uv);
                         }
-                        for (&fi, t) in incident[v].iter().zip(nt) {
+                        for (&fi, &t) in incident[v].iter().zip(&nt) {
                             term[fi] = t;
                         }
                         (sl, sa, energy) = (nl, na, e);

@@ -111,7 +111,12 @@ impl<'a> PhotoPyramid<'a> {
 
     /// Trilinear sample with a footprint of `texels` photo pixels.
     pub(super) fn sample(&self, px: &Point2<f64>, footprint: f64) -> [f32; 3] {
-        let lod = footprint.max(1.0).log2().min(self.levels.len() as f64);
+        // Most texels are finer than a pixel (the atlas oversamples the photographs): level 0,
+        // as the logarithm below would say (NaN included), without computing it for each.
+        if footprint.is_nan() || footprint <= 1.0 {
+            return self.bilinear(0, px);
+        }
+        let lod = footprint.log2().min(self.levels.len() as f64);
         let l0 = lod.floor() as usize;
         let a = self.bilinear(l0, px);
         if lod == l0 as f64 {

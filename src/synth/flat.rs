@@ -10,7 +10,6 @@ use crate::mesh::topology::NO_FACE;
 use crate::mesh::{FaceId, Mesh};
 use crate::resample::TexelSource;
 use nalgebra::{Point3, Vector2, Vector3};
-use std::collections::HashMap;
 
 /// Least cosine between a face under a square and the square's normal (about 37 degrees):
 /// steeper faces would be squeezed by the flattening by more than a fifth.
@@ -68,7 +67,7 @@ pub(super) fn seeds(mesh: &Mesh, atlas: &Atlas, source: &[u8], cell: f64, most: 
         .collect();
     let mut cell = cell.max(1e-12);
     loop {
-        let mut best: HashMap<[i64; 3], (f64, u32)> = HashMap::new();
+        let mut best: rustc_hash::FxHashMap<[i64; 3], (f64, u32)> = Default::default();
         for &(f, p) in &usable {
             let g = p.coords / cell;
             let key = [g.x.floor() as i64, g.y.floor() as i64, g.z.floor() as i64];

@@ -493,7 +493,7 @@ pub(super) fn grow_patches(
             (p.z / cell).floor() as i64,
         ]
     };
-    let mut buckets: std::collections::HashMap<[i64; 3], Vec<u32>> = Default::default();
+    let mut buckets: rustc_hash::FxHashMap<[i64; 3], Vec<u32>> = Default::default();
     for (i, (p, _)) in rim.iter().enumerate() {
         buckets.entry(key(p)).or_default().push(i as u32);
     }

@@ -541,7 +541,8 @@ fn build_sources(
     // texel of a 4096x4096 window for each of eight orientations. Windows with few valid
     // texels (an atlas's sparse charts) fall back to the scan.
     if max_sources > 0 && rw * rh > 4 * max_sources {
-        let mut taken = std::collections::HashSet::with_capacity(max_sources);
+        let mut taken = rustc_hash::FxHashSet::default();
+        taken.reserve(max_sources);
         for _ in 0..8 * max_sources {
             if positions.len() == max_sources {
                 break;
@@ -581,7 +582,8 @@ fn build_sources(
     // Flat regions give thousands of identical neighbourhoods, which make kd-tree queries
     // scan whole buckets of ties: keep one texel per distinct vector (the first in scan
     // order; coherence candidates still reach every texel).
-    let mut seen = std::collections::HashSet::with_capacity(positions.len());
+    let mut seen = rustc_hash::FxHashSet::default();
+    seen.reserve(positions.len());
     let mut kept = Vec::with_capacity(positions.len());
     for &q in &positions {
         source_vector(l, coarse, q as usize, o, ch, &mut v);
