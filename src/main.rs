@@ -20,9 +20,23 @@ use std::process::ExitCode;
                   half-written is left)."
 )]
 struct Cli {
+    /// Worker threads for the data-parallel work (0: one per core, or RAYON_NUM_THREADS when
+    /// set). For several jobs on one machine; the output is the same bytes at any count.
+    #[arg(
+        long,
+        global = true,
+        default_value_t = 0,
+        value_name = "N",
+        value_parser = clap::value_parser!(u16).range(0..=MAX_THREADS)
+    )]
+    threads: u16,
     #[command(subcommand)]
     command: Command,
 }
+
+/// The most `--threads` takes: far more threads than cores only adds memory (per-thread
+/// buffers) and switching.
+const MAX_THREADS: i64 = 1024;
 
 #[derive(Subcommand)]
 enum Command {
@@ -1039,6 +1053,18 @@ fn main() -> ExitCode {
         return ExitCode::from(EXIT_INPUT);
     }
     let cli = Cli::parse();
+    if cli.threads > 0 {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(cli.threads.into())
+            .build_global();
+        if let Err(e) = pool {
+            eprintln!(
+                "scantex: error: cannot start {} worker threads: {e}",
+                cli.threads
+            );
+            return ExitCode::from(EXIT_INPUT);
+        }
+    }
     remove_outputs_on_signals();
     match run(cli) {
         Ok(code) => code,

@@ -366,6 +366,9 @@ pub struct TextureReport {
     pub stages: Vec<StageReport>,
     /// Wall time of the whole run (reading the inputs aside), seconds.
     pub seconds: f64,
+    /// Worker threads of the pool the run's data-parallel work ran on (the output does not
+    /// depend on it).
+    pub threads: usize,
     /// The memory limit and the estimate the run was checked against.
     pub memory: MemoryReport,
     /// Peak resident memory of the process so far (reading the inputs included), MB (0 if
@@ -786,6 +789,7 @@ pub fn texture_with(
         pages: page_reports,
         stages,
         seconds: wall.elapsed().as_secs_f64(),
+        threads: rayon::current_num_threads(),
         memory: MemoryReport {
             limit_bytes: limit,
             estimate,

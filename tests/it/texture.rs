@@ -494,6 +494,49 @@ macro_rules! texture {
     ($($a:expr),* $(,)?) => { run_texture(&[$(OsStr::new(&$a)),*]) };
 }
 
+/// `--threads` sets the pool the run works on (report.json says how many) and never the
+/// output: one thread gives the bytes of the default pool. A count beyond the limit is a
+/// usage error.
+#[test]
+fn cli_texture_threads_change_the_pool_not_the_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let outs = [dir.path().join("one"), dir.path().join("default")];
+    for (out, threads) in outs.iter().zip(["1", "0"]) {
+        let (ok, err) = texture!(
+            "samples/torus",
+            "--size",
+            "256",
+            "--threads",
+            threads,
+            "-o",
+            out
+        );
+        assert!(ok, "{err}");
+    }
+    let read = |p: &Path| std::fs::read(p).unwrap();
+    for f in ["model.png", "model.obj"] {
+        assert!(
+            read(&outs[0].join(f)) == read(&outs[1].join(f)),
+            "{f} differs"
+        );
+    }
+    let threads = |out: &Path| -> u64 {
+        let r: serde_json::Value = serde_json::from_slice(&read(&out.join("report.json"))).unwrap();
+        r["threads"].as_u64().unwrap()
+    };
+    assert_eq!(threads(&outs[0]), 1);
+    assert_eq!(threads(&outs[1]) as usize, rayon::current_num_threads());
+    let o = Command::new(env!("CARGO_BIN_EXE_scantex"))
+        .args(["texture", "samples/torus", "--threads", "5000", "-o"])
+        .arg(dir.path().join("refused"))
+        .current_dir(common::root())
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--threads"));
+    assert!(!dir.path().join("refused").exists());
+}
+
 #[test]
 fn cli_texture_writes_every_output_and_a_texture_that_renders() {
     let dir = tempfile::tempdir().unwrap();
