@@ -651,13 +651,15 @@ pub fn texture_with(
         }
     }
     atlas_opts.pack.max_pages = opts.max_pages;
+    // The atlas reports its charts on a bar of its own, below binding's.
+    let atlas_progress = progress.beside();
     let (atlas_done, bind_done) = rayon::join(
         || {
             let t = Instant::now();
             let built = if opts.keep_uvs {
                 atlas::keep(welded.clone(), atlas_opts.pack.size)
             } else {
-                atlas::build_pages(welded.clone(), &atlas_opts)
+                atlas::build_pages_reporting(welded.clone(), &atlas_opts, atlas_progress.as_ref())
             };
             built.map(|r| (r, t.elapsed().as_secs_f64()))
         },

@@ -17,6 +17,11 @@ pub trait Progress: Sync {
     fn warn(&self, msg: &str) {
         eprintln!("scantex: warning: {msg}");
     }
+    /// A reporter for work that runs beside the current stage, with its own bar: the atlas
+    /// beside binding. Reports nothing unless overridden.
+    fn beside(&self) -> Box<dyn Progress + '_> {
+        Box::new(Silent)
+    }
 }
 
 /// Reports nothing.
@@ -30,9 +35,12 @@ impl Progress for Silent {
 }
 
 /// Progress bars on standard error, shown only for stages still running after a second and
-/// only when standard error is a terminal (indicatif hides them otherwise).
+/// only when standard error is a terminal (indicatif hides them otherwise). Reporters made by
+/// [`Progress::beside`] draw their bars below this one's.
 #[derive(Default)]
 pub struct Bars {
+    /// Where every bar of this reporter and those beside it is drawn.
+    multi: indicatif::MultiProgress,
     current: Mutex<Option<(indicatif::ProgressBar, Instant, bool)>>,
 }
 
@@ -61,7 +69,7 @@ impl Progress for Bars {
             if let Some((bar, t0, shown)) = c.as_mut() {
                 bar.inc(n);
                 if !*shown && t0.elapsed() > SHOW_AFTER {
-                    bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+                    *bar = self.multi.add(bar.clone());
                     *shown = true;
                 }
             }
@@ -70,17 +78,24 @@ impl Progress for Bars {
 
     fn finish(&self) {
         if let Ok(mut c) = self.current.lock() {
-            if let Some((bar, _, _)) = c.take() {
+            if let Some((bar, _, shown)) = c.take() {
                 bar.finish_and_clear();
+                if shown {
+                    self.multi.remove(&bar);
+                }
             }
         }
     }
 
     fn warn(&self, msg: &str) {
         let line = format!("scantex: warning: {msg}");
-        match self.current.lock().ok().as_ref().and_then(|c| c.as_ref()) {
-            Some((bar, _, _)) => bar.suspend(|| eprintln!("{line}")),
-            None => eprintln!("{line}"),
-        }
+        self.multi.suspend(|| eprintln!("{line}"));
+    }
+
+    fn beside(&self) -> Box<dyn Progress + '_> {
+        Box::new(Bars {
+            multi: self.multi.clone(),
+            current: Mutex::new(None),
+        })
     }
 }

@@ -63,8 +63,20 @@ pub fn flatten_all(mesh: &Mesh, opts: &FlattenOptions) -> Vec<ChartMap> {
 
 /// [`flatten_all`] with the mesh's adjacency already built.
 pub fn flatten_all_with(mesh: &Mesh, adj: &Adjacency, opts: &FlattenOptions) -> Vec<ChartMap> {
+    flatten_all_reporting(mesh, adj, opts, &crate::progress::Silent)
+}
+
+/// [`flatten_all_with`], reporting the segmented charts flattened as `progress`'s "atlas"
+/// stage.
+fn flatten_all_reporting(
+    mesh: &Mesh,
+    adj: &Adjacency,
+    opts: &FlattenOptions,
+    progress: &dyn crate::progress::Progress,
+) -> Vec<ChartMap> {
     use rayon::prelude::*;
     let charts = segment::segment_with(mesh, adj, &opts.segment).charts;
+    progress.start("atlas", charts.len() as u64);
     // Group the charts by connected component (through crossable edges), in chart order.
     let comp = components(mesh, adj);
     let mut groups: Vec<(u32, Vec<Vec<crate::mesh::FaceId>>)> = Vec::new();
@@ -91,6 +103,7 @@ pub fn flatten_all_with(mesh: &Mesh, adj: &Adjacency, opts: &FlattenOptions) -> 
                     optimize::optimize(mesh, &mut map, &opts.stretch);
                     let s = param::stretch(mesh, std::slice::from_ref(&map));
                     if s.l2 <= opts.max_chart_stretch && s.flipped == 0 && s.zero_area == 0 {
+                        progress.advance(group.len() as u64);
                         return vec![map];
                     }
                 }
@@ -99,10 +112,15 @@ pub fn flatten_all_with(mesh: &Mesh, adj: &Adjacency, opts: &FlattenOptions) -> 
             group
                 .into_par_iter()
                 .with_max_len(1)
-                .flat_map_iter(|c| flatten_chart(mesh, adj, c, opts))
+                .flat_map_iter(|c| {
+                    let maps = flatten_chart(mesh, adj, c, opts);
+                    progress.advance(1);
+                    maps
+                })
                 .collect()
         })
         .collect();
+    progress.finish();
     per_group.into_iter().flatten().collect()
 }
 
@@ -461,7 +479,7 @@ pub fn parameterize(mesh: &Mesh, opts: &AtlasOptions) -> crate::Result<(Mesh, At
     m.uv = None;
     m.texture = None;
     m.weld();
-    let (uv, _, report) = layout(&m, opts)?;
+    let (uv, _, report) = layout(&m, opts, &crate::progress::Silent)?;
     m.uv = Some(uv);
     Ok((m, report))
 }
@@ -487,11 +505,18 @@ pub fn build(mesh: Mesh, opts: &AtlasOptions) -> crate::Result<(Mesh, Atlas, Atl
 /// Stage 1 as texturing runs it: `mesh` (welded, as [`Mesh::weld`] leaves it) gains its atlas
 /// UVs on one or more pages (UDIM tiles: page `p` at u in `[p, p + 1]`), and [`Pages`] builds
 /// each page's [`Atlas`] from stage 1's own charts when its turn comes.
-pub fn build_pages(
+pub fn build_pages(mesh: Mesh, opts: &AtlasOptions) -> crate::Result<(Mesh, Pages, AtlasReport)> {
+    build_pages_reporting(mesh, opts, &crate::progress::Silent)
+}
+
+/// [`build_pages`], reporting the charts flattened to `progress` (the packing that follows
+/// has no steps to count).
+pub fn build_pages_reporting(
     mut mesh: Mesh,
     opts: &AtlasOptions,
+    progress: &dyn crate::progress::Progress,
 ) -> crate::Result<(Mesh, Pages, AtlasReport)> {
-    let (uv, face_chart, report) = layout(&mesh, opts)?;
+    let (uv, face_chart, report) = layout(&mesh, opts, progress)?;
     let face_page =
         (report.pages > 1).then(|| (0..uv.faces.len()).map(|f| uv.face_page(f)).collect());
     mesh.uv = Some(uv);
@@ -599,11 +624,12 @@ pub fn keep(mesh: Mesh, size: u32) -> crate::Result<(Mesh, Pages, AtlasReport)> 
 fn layout(
     m: &Mesh,
     opts: &AtlasOptions,
+    progress: &dyn crate::progress::Progress,
 ) -> crate::Result<(crate::mesh::UvMap, Vec<u32>, AtlasReport)> {
     opts.validate()?;
     let t0 = std::time::Instant::now();
     let adj = Adjacency::new(m);
-    let maps = flatten_all_with(m, &adj, &opts.flatten);
+    let maps = flatten_all_reporting(m, &adj, &opts.flatten, progress);
     let t1 = std::time::Instant::now();
     let scales = if opts.budget_by_energy {
         optimize::chart_scales(m, &maps, &opts.flatten.stretch)
@@ -773,6 +799,52 @@ mod tests {
     };
     use super::*;
     use nalgebra::{Point3, Vector3};
+
+    /// Records what a stage reports: (stage, total) per start, steps advanced, finishes.
+    #[derive(Default)]
+    struct Recorder(std::sync::Mutex<(Vec<(String, u64)>, u64, usize)>);
+
+    impl crate::progress::Progress for Recorder {
+        fn start(&self, stage: &str, total: u64) {
+            self.0.lock().unwrap().0.push((stage.to_string(), total));
+        }
+        fn advance(&self, n: u64) {
+            self.0.lock().unwrap().1 += n;
+        }
+        fn finish(&self) {
+            self.0.lock().unwrap().2 += 1;
+        }
+    }
+
+    /// The atlas's bar counts the segmented charts and ends full, whether a component is
+    /// kept whole (a disk folded at a right angle: two charts, one flat piece) or charted
+    /// (the torus, with splits), and the layout is the one an unreported build makes.
+    #[test]
+    fn atlas_progress_reaches_its_total() {
+        let folded = polar_grid(6, 24, |r, k| {
+            let a = std::f64::consts::TAU * k as f64 / 24.0;
+            let (x, y) = (r as f64 * a.cos(), r as f64 * a.sin());
+            if x > 0.0 {
+                Point3::new(0.0, y, x)
+            } else {
+                Point3::new(x, y, 0.0)
+            }
+        });
+        let (torus, _) = crate::sample::dented_torus(60, 24, (8, 8));
+        for mesh in [folded, torus] {
+            let opts = AtlasOptions::default();
+            let rec = Recorder::default();
+            let (reported, _, _) = build_pages_reporting(mesh.clone(), &opts, &rec).unwrap();
+            let (quiet, _, _) = build_pages(mesh, &opts).unwrap();
+            assert!(reported.uv == quiet.uv);
+            let (starts, advanced, finished) = rec.0.into_inner().unwrap();
+            assert_eq!(starts.len(), 1, "{starts:?}");
+            assert_eq!(starts[0].0, "atlas");
+            assert!(starts[0].1 > 0);
+            assert_eq!(advanced, starts[0].1);
+            assert_eq!(finished, 1);
+        }
+    }
 
     #[test]
     fn flatten_all_bounds_every_charts_stretch_without_flips() {
