@@ -800,9 +800,12 @@ mod tests {
     use super::*;
     use nalgebra::{Point3, Vector3};
 
-    /// Records what a stage reports: (stage, total) per start, steps advanced, finishes.
+    /// What a [`Recorder`] saw: (stage, total) per start, steps advanced, finishes.
+    type Recorded = (Vec<(String, u64)>, u64, usize);
+
+    /// Records what a stage reports.
     #[derive(Default)]
-    struct Recorder(std::sync::Mutex<(Vec<(String, u64)>, u64, usize)>);
+    struct Recorder(std::sync::Mutex<Recorded>);
 
     impl crate::progress::Progress for Recorder {
         fn start(&self, stage: &str, total: u64) {
