@@ -847,7 +847,6 @@ fn texture_page(
     let (restore, unrestored) = match opts.restoration {
         Restoration::Off => (None, None),
         Restoration::Synthesis { options, handing } => {
-            progress.start("restore", 1);
             let (r, left) = restore::restore_atlas(
                 &mut resampled,
                 m,
@@ -855,6 +854,7 @@ fn texture_page(
                 &options,
                 &handing,
                 opts.resample.gutter_fill,
+                progress,
             )?;
             // Restored texels meet at chart borders without having seen each other.
             if opts.merge.merge == merge::Merge::Multiband && opts.merge.level_seams {
@@ -868,7 +868,6 @@ fn texture_page(
     };
     let synth = match (&unrestored, &opts.synth.exemplar) {
         (Some(left), e) if *e != ExemplarSource::Off && !left.regions.is_empty() => {
-            progress.start("synth", 1);
             let r = synth::synthesize(
                 m,
                 ctx.normals,
@@ -880,6 +879,7 @@ fn texture_page(
                 ctx.user,
                 &opts.synth,
                 opts.resample.gutter_fill,
+                progress,
             )?;
             progress.finish();
             stage("synth");

@@ -87,6 +87,7 @@ pub fn restore_atlas(
     opts: &RestoreOptions,
     handing: &Handing,
     gutter_fill: u32,
+    progress: &dyn crate::progress::Progress,
 ) -> Result<(RestoreReport, Unrestored)> {
     use crate::resample::TexelSource as S;
     let max_hole = handing.max_hole;
@@ -214,6 +215,9 @@ pub fn restore_atlas(
     // in parallel on the atlas as it came from the merge.
     let crops = crops(n, &comps, opts.margin.max(16) + 8, MAX_CROP_AREA);
     let wall = Instant::now();
+    // Progress in hole texels, a crop's all at once when it is done.
+    let crop_texels = |c: &Crop| c.holes.iter().map(|&k| comps[k].len() as u64).sum::<u64>();
+    progress.start("restore", crops.iter().map(crop_texels).sum());
     // Largest crops first, one task each: rayon's adaptive split would hand a core a run of
     // crops, and the largest crop started last left the other core idle. The results go back
     // to the crops' order.
@@ -260,6 +264,7 @@ pub fn restore_atlas(
                     (idx(j % cw, j / cw), c)
                 })
                 .collect();
+            progress.advance(crop_texels(crop));
             Ok((k, (fills, rep)))
         })
         .collect::<Result<_>>()?;

@@ -318,6 +318,7 @@ pub fn synthesize(
     user: Option<&image::Rgb32FImage>,
     opts: &SynthOptions,
     gutter_fill: u32,
+    progress: &dyn crate::progress::Progress,
 ) -> Result<Synthesized> {
     opts.validate()?;
     let wall = Instant::now();
@@ -566,6 +567,7 @@ pub fn synthesize(
         &sources,
         radius,
         opts.keep_patch_map,
+        progress,
     );
     crate::resample::refill_gutter(res, gutter_fill);
     report.seconds_bake = t.elapsed().as_secs_f64();

@@ -710,6 +710,7 @@ pub(super) fn bake(
     sources: &[Source],
     radius: f64,
     record: bool,
+    progress: &dyn crate::progress::Progress,
 ) -> (u64, u64, Vec<(u32, u32)>) {
     let n = atlas.size as usize;
     let inv_r2 = 1.0 / (radius * radius);
@@ -793,8 +794,11 @@ pub(super) fn bake(
     let (mut written, mut bare) = (0u64, 0u64);
     let mut winners = Vec::new();
     const BATCH: usize = 16384;
+    // The bake is most of stage 6's time: its faces are the stage's steps.
+    progress.start("synth", faces.len() as u64);
     for batch in faces.chunks(BATCH) {
         let parts: Vec<Vec<Out>> = batch.par_chunks(64).map(bake_faces).collect();
+        progress.advance(batch.len() as u64);
         for (i, c, heaviest, b) in parts.into_iter().flatten() {
             data[3 * i as usize..3 * i as usize + 3].copy_from_slice(&c);
             written += 1;

@@ -144,6 +144,65 @@ fn stage_six_gives_the_same_bytes_on_one_thread() {
     assert!(reseeded.page().resampled.color != many.page().resampled.color);
 }
 
+/// What the stages of a run reported: (stage, total, steps advanced), in the order they
+/// began, from the run's reporter and those beside it.
+#[derive(Clone, Default)]
+struct Recorder {
+    log: std::sync::Arc<std::sync::Mutex<Vec<(String, u64, u64)>>>,
+    current: std::sync::Arc<std::sync::Mutex<Option<usize>>>,
+}
+
+impl scantex::progress::Progress for Recorder {
+    fn start(&self, stage: &str, total: u64) {
+        let mut log = self.log.lock().unwrap();
+        log.push((stage.to_string(), total, 0));
+        *self.current.lock().unwrap() = Some(log.len() - 1);
+    }
+    fn advance(&self, n: u64) {
+        if let Some(i) = *self.current.lock().unwrap() {
+            self.log.lock().unwrap()[i].2 += n;
+        }
+    }
+    fn finish(&self) {
+        *self.current.lock().unwrap() = None;
+    }
+    fn beside(&self) -> Box<dyn scantex::progress::Progress + '_> {
+        Box::new(Recorder {
+            log: self.log.clone(),
+            current: Default::default(),
+        })
+    }
+}
+
+/// Every long stage of a run with a side no photograph saw shows a bar that ends full:
+/// binding, the atlas (beside it), merging, restoration and stage 6.
+#[test]
+fn every_long_stage_reports_progress_to_its_end() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    one_sided_torus(&scene);
+    let s = scantex::scene::Scene::load(&SceneSpec {
+        dir: Some(scene),
+        ..Default::default()
+    })
+    .unwrap();
+    let (mesh, _) = s.mesh.as_ref().unwrap();
+    let opts = TextureOptions {
+        size: AtlasSize::Fixed(512),
+        ..Default::default()
+    };
+    let rec = Recorder::default();
+    scantex::pipeline::texture(mesh, &s.photos, &opts, &rec).unwrap();
+    let log = rec.log.lock().unwrap().clone();
+    for stage in ["binding", "atlas", "merging", "restore", "synth"] {
+        let (_, total, done) = log
+            .iter()
+            .find(|(s, _, _)| s == stage)
+            .unwrap_or_else(|| panic!("no {stage} bar in {log:?}"));
+        assert!(*total > 0 && done == total, "{stage}: {log:?}");
+    }
+}
+
 fn synth_cli(args: &[&str]) -> (bool, String) {
     let o = Command::new(env!("CARGO_BIN_EXE_scantex"))
         .arg("synth")
