@@ -836,7 +836,13 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             opts.flatten.stretch.view_dir = view_dir.map(nalgebra::Vector3::from);
             opts.pack.texels_per_unit = texel_density;
             opts.budget_by_energy = !uniform_density;
-            let rep = scantex::pipeline::param_file(&mesh, &out, report.as_deref(), &opts)?;
+            let rep = scantex::pipeline::param_file(
+                &mesh,
+                &out,
+                report.as_deref(),
+                &opts,
+                &scantex::progress::Bars::default(),
+            )?;
             let json = serde_json::to_string_pretty(&rep).expect("report serialises");
             print_out(&format!("{json}\n"));
             Ok(ExitCode::SUCCESS)

@@ -1128,6 +1128,7 @@ pub fn param_file(
     out: &Path,
     report: Option<&Path>,
     opts: &AtlasOptions,
+    progress: &dyn Progress,
 ) -> Result<AtlasReport> {
     let stem = out
         .file_stem()
@@ -1138,7 +1139,7 @@ pub fn param_file(
     dirs.extend(report.map(io::staging::dir_of));
     let mut staged = Staged::begin(&io::staging::label_of(out), &dirs)?;
     let (input, _) = io::read_mesh(mesh)?;
-    let (out_mesh, rep) = atlas::parameterize(&input, opts)?;
+    let (out_mesh, rep) = atlas::parameterize_reporting(&input, opts, progress)?;
     let picture = atlas::layout_picture(&out_mesh, opts.pack.size.min(2048));
     let png = io::image::encode_png(&DynamicImage::ImageRgb8(picture))?;
     io::stage_mesh(&mut staged, out, &out_mesh, None)?;

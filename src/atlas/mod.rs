@@ -475,11 +475,20 @@ pub struct AtlasReport {
 /// Stage 1: gives `mesh` texture coordinates in one atlas. The mesh is welded first (vertices
 /// split along old UV seams are one surface again); its faces keep their order.
 pub fn parameterize(mesh: &Mesh, opts: &AtlasOptions) -> crate::Result<(Mesh, AtlasReport)> {
+    parameterize_reporting(mesh, opts, &crate::progress::Silent)
+}
+
+/// [`parameterize`], reporting the charts flattened to `progress`.
+pub fn parameterize_reporting(
+    mesh: &Mesh,
+    opts: &AtlasOptions,
+    progress: &dyn crate::progress::Progress,
+) -> crate::Result<(Mesh, AtlasReport)> {
     let mut m = mesh.clone();
     m.uv = None;
     m.texture = None;
     m.weld();
-    let (uv, _, report) = layout(&m, opts, &crate::progress::Silent)?;
+    let (uv, _, report) = layout(&m, opts, progress)?;
     m.uv = Some(uv);
     Ok((m, report))
 }
