@@ -136,7 +136,7 @@ pub fn level_seams(
 
     // Border samples, where both faces belong to charts on the page.
     let mut samples: Vec<Sample> = border_samples(mesh, n)
-        .into_iter()
+        .into_par_iter()
         .filter_map(|b| {
             let (c1, c2) = (face_chart[b.faces[0]], face_chart[b.faces[1]]);
             if c1 == u32::MAX || c2 == u32::MAX {

@@ -6,7 +6,6 @@ use crate::error::{Error, Result};
 use crate::mesh::{FaceId, Mesh};
 use nalgebra::Vector2;
 use rayon::prelude::*;
-use rustc_hash::FxHashMap;
 
 /// Texture coordinate `corner` of `uv` in texel units of an `n`-texel page: x right, y down
 /// from the page's top-left corner (UVs have v up from the lower left).
@@ -189,53 +188,157 @@ pub(crate) fn border_samples(mesh: &Mesh, n: usize) -> Vec<BorderSample> {
         let nrm = Vector2::new(-e.y, e.x);
         Some(if nrm.dot(&(o - a)) >= 0.0 { nrm } else { -nrm })
     };
-    // Each undirected edge: its first face and corner indices.
-    let mut first: FxHashMap<(u32, u32), (usize, usize)> = FxHashMap::default();
-    let mut out = Vec::new();
-    for (f, fv) in mesh.faces.iter().enumerate() {
-        for k in 0..3 {
-            let (a, b) = (fv[k].0, fv[(k + 1) % 3].0);
-            let key = (a.min(b), a.max(b));
-            let Some(&(g, gk)) = first.get(&key) else {
-                first.insert(key, (f, k));
-                continue;
+    // Each half-edge (face, corner) paired with the first half-edge of the same undirected
+    // edge, in face order (the lowest face and corner): sorted, not hashed, so that it runs
+    // in parallel; a half-edge that is its edge's first has no pair.
+    let nf = mesh.faces.len();
+    let mut halves: Vec<(u64, u32)> = (0..3 * nf)
+        .into_par_iter()
+        .map(|h| {
+            let fv = mesh.faces[h / 3];
+            let (a, b) = (fv[h % 3].0, fv[(h % 3 + 1) % 3].0);
+            ((u64::from(a.min(b)) << 32) | u64::from(a.max(b)), h as u32)
+        })
+        .collect();
+    halves.par_sort_unstable();
+    let mut first_of = vec![u32::MAX; 3 * nf];
+    for group in halves.chunk_by(|x, y| x.0 == y.0) {
+        for &(_, h) in &group[1..] {
+            first_of[h as usize] = group[0].1;
+        }
+    }
+    drop(halves);
+    let samples_of = |h: usize| -> Vec<BorderSample> {
+        let Some(g3) = (first_of[h] != u32::MAX).then_some(first_of[h] as usize) else {
+            return Vec::new();
+        };
+        let (f, k) = (h / 3, h % 3);
+        let (g, gk) = (g3 / 3, g3 % 3);
+        let fv = mesh.faces[f];
+        let a = fv[k].0;
+        // Texture coordinates of a then b on a face, and its third corner.
+        let side = |face: usize, corner: usize| {
+            let c = uv.faces[face];
+            let (ca, cb) = (c[corner], c[(corner + 1) % 3]);
+            let ab = if mesh.faces[face][corner].0 == a {
+                [ca, cb]
+            } else {
+                [cb, ca]
             };
-            // Texture coordinates of a then b on a face, and its third corner.
-            let side = |face: usize, corner: usize| {
-                let c = uv.faces[face];
-                let (ca, cb) = (c[corner], c[(corner + 1) % 3]);
-                let ab = if mesh.faces[face][corner].0 == a {
-                    [ca, cb]
-                } else {
-                    [cb, ca]
-                };
-                (ab, c[(corner + 2) % 3])
-            };
-            let (i1, o1) = side(f, k);
-            let (i2, o2) = side(g, gk);
-            if i1 == i2 {
-                continue; // not a border: the same texture coordinates on both faces
-            }
-            let (a1, b1, a2, b2) = (texel(i1[0]), texel(i1[1]), texel(i2[0]), texel(i2[1]));
-            let (p1, p2) = (texel(o1), texel(o2));
-            if ![a1, b1, p1, a2, b2, p2].into_iter().all(on_page) {
-                continue;
-            }
-            let (Some(n1), Some(n2)) = (inward(a1, b1, p1), inward(a2, b2, p2)) else {
-                continue;
-            };
-            let m = ((b1 - a1).norm().max((b2 - a2).norm()).ceil() as usize).max(1);
-            for j in 0..m {
+            (ab, c[(corner + 2) % 3])
+        };
+        let (i1, o1) = side(f, k);
+        let (i2, o2) = side(g, gk);
+        if i1 == i2 {
+            return Vec::new(); // not a border: the same texture coordinates on both faces
+        }
+        let (a1, b1, a2, b2) = (texel(i1[0]), texel(i1[1]), texel(i2[0]), texel(i2[1]));
+        let (p1, p2) = (texel(o1), texel(o2));
+        if ![a1, b1, p1, a2, b2, p2].into_iter().all(on_page) {
+            return Vec::new();
+        }
+        let (Some(n1), Some(n2)) = (inward(a1, b1, p1), inward(a2, b2, p2)) else {
+            return Vec::new();
+        };
+        let m = ((b1 - a1).norm().max((b2 - a2).norm()).ceil() as usize).max(1);
+        (0..m)
+            .map(|j| {
                 let t = (j as f64 + 0.5) / m as f64;
-                out.push(BorderSample {
+                BorderSample {
                     faces: [f, g],
                     uv: [i1, i2],
                     t,
                     at: [a1 + (b1 - a1) * t, a2 + (b2 - a2) * t],
                     inward: [n1, n2],
-                });
+                }
+            })
+            .collect()
+    };
+    // In half-edge order, as a walk over the faces would emit them.
+    (0..3 * nf)
+        .into_par_iter()
+        .flat_map_iter(samples_of)
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The samples a walk over the faces gives, remembering each edge's first half-edge in a
+    /// map (what [`border_samples`] did before it sorted): the same samples in the same order.
+    #[test]
+    fn border_samples_match_a_walk_over_the_faces() {
+        let (torus, _) = crate::sample::dented_torus(40, 16, (6, 6));
+        let opts = crate::atlas::AtlasOptions {
+            pack: crate::atlas::pack::PackOptions {
+                size: 512,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let (mut mesh, _) = crate::atlas::parameterize(&torus, &opts).unwrap();
+        // A third face on one edge (non-manifold), and a face with a repeated corner.
+        let f0 = mesh.faces[0];
+        mesh.faces.push([f0[1], f0[0], f0[2]]);
+        mesh.faces.push([f0[0], f0[0], f0[1]]);
+        // The third face has texture coordinates of its own, so its edges are borders with
+        // both faces it meets.
+        let uv = mesh.uv.as_mut().unwrap();
+        let c0 = uv.faces[0];
+        let base = uv.coords.len() as u32;
+        for &c in &[c0[1], c0[0], c0[2]] {
+            let p = uv.coords[c as usize];
+            uv.coords
+                .push(p * 0.999 + nalgebra::Vector2::repeat(0.0004));
+        }
+        uv.faces.push([base, base + 1, base + 2]);
+        uv.faces.push([c0[0], c0[0], c0[1]]);
+        let n = 512;
+        let got = border_samples(&mesh, n);
+        let uv = mesh.uv.as_ref().unwrap();
+        let mut first: std::collections::HashMap<(u32, u32), (usize, usize)> = Default::default();
+        let mut want = Vec::new();
+        for (f, fv) in mesh.faces.iter().enumerate() {
+            for k in 0..3 {
+                let (a, b) = (fv[k].0, fv[(k + 1) % 3].0);
+                let Some(&(g, gk)) = first.get(&(a.min(b), a.max(b))) else {
+                    first.insert((a.min(b), a.max(b)), (f, k));
+                    continue;
+                };
+                let side = |face: usize, corner: usize| {
+                    let c = uv.faces[face];
+                    let (ca, cb) = (c[corner], c[(corner + 1) % 3]);
+                    if mesh.faces[face][corner].0 == a {
+                        [ca, cb]
+                    } else {
+                        [cb, ca]
+                    }
+                };
+                let (i1, i2) = (side(f, k), side(g, gk));
+                if i1 != i2 {
+                    want.push(([f, g], [i1, i2]));
+                }
             }
         }
+        // Every border edge of the walk, in its order (each sampled at least once; edges off
+        // the page or degenerate are dropped by both).
+        let mut edges: Vec<([usize; 2], [[u32; 2]; 2])> =
+            got.iter().map(|b| (b.faces, b.uv)).collect();
+        edges.dedup();
+        let kept: Vec<_> = want.iter().filter(|e| edges.contains(e)).cloned().collect();
+        assert_eq!(edges, kept);
+        assert!(
+            edges.len() > 50 && edges.len() + 2 >= want.len(),
+            "{} of {}",
+            edges.len(),
+            want.len()
+        );
+        for b in &got {
+            assert!(b.t > 0.0 && b.t < 1.0);
+            assert!(
+                (b.inward[0].norm() - 1.0).abs() < 1e-9 && (b.inward[1].norm() - 1.0).abs() < 1e-9
+            );
+        }
     }
-    out
 }
