@@ -7,10 +7,15 @@ count and photographed by each number of 12 MP cameras.
     cargo build --release
     python3 benches/scale_curve.py <workdir> 70000:50 1000000:50 4000000:50 1000000:200
     python3 benches/scale_curve.py --small <workdir> 1000000:50 1000000:1000
+    python3 benches/scale_curve.py --exact <workdir> 1500000:50
 
 Each FACES:PHOTOS point refines the corset to the fewest triangles of at least FACES
-(18,324 x 3^a x 4^b: 73k, 1.17M, 4.69M, 10.6M, 18.8M; see mesh_of) and renders PHOTOS photographs (800x600 renders
-upscaled to 4000x3000 with sensor-like noise, as the speed scene's). Scenes are kept in
+(18,324 x 3^a x 4^b: 73k, 1.17M, 4.69M, 10.6M, 18.8M; see mesh_of) and renders PHOTOS
+photographs (800x600 renders upscaled to 4000x3000 with sensor-like noise, as the speed
+scene's). With --exact, the mesh has exactly FACES triangles: the most of at most FACES from
+midpoint subdivisions alone (sqrt(3) steps repeated leave slivers along the corset's boundary
+edges, which split charts: 7,043 charts for 1.48M faces, against 1,152 here), topped up by
+splitting evenly spread triangles at their centroids (1.5M: 1,172,736 + 2 x 163,632). Scenes are kept in
 <workdir> and reused (the photographs of one count are shared by every face count). One run
 of `scantex texture <scene> -o out -q` (the defaults: --size auto, the default memory limit)
 per point, timed by /usr/bin/time; the per-stage figures are report.json's.
@@ -47,7 +52,9 @@ def photos_of(work, n, small_only=False):
 def sqrt3_split(v, f):
     """Each triangle split in three at its centroid, then each edge the split kept flipped to
     join the two new centroids (Kobbelt's sqrt(3) step without smoothing): three times the
-    faces, still well shaped, on the same surface up to the flips' small chords."""
+    faces, still well shaped, on the same surface up to the flips' small chords (but the
+    triangles on one of the corset's 4,500 boundary edges lose two thirds of their height at each
+    step)."""
     import numpy as np
     n, nv = len(f), len(v)
     c = v[f].mean(axis=1)
@@ -72,15 +79,38 @@ def sqrt3_split(v, f):
     return np.vstack([v, c]), out
 
 
-def mesh_of(work, faces):
+def top_up(v, f, faces):
+    """Evenly spread triangles split in three at their centroids (no flips) until there are
+    `faces` (one short when the difference is odd)."""
+    import numpy as np
+    k = (faces - len(f)) // 2
+    if k <= 0:
+        return v, f
+    pick = np.linspace(0, len(f) - 1, k).round().astype(np.int64)
+    c = v[f[pick]].mean(axis=1)
+    m = len(v) + np.arange(k)
+    a, b, d = f[pick, 0], f[pick, 1], f[pick, 2]
+    out = f.copy()
+    out[pick] = np.stack([a, b, m], axis=1)
+    extra = np.vstack([np.stack([b, d, m], axis=1), np.stack([d, a, m], axis=1)])
+    return np.vstack([v, c]), np.vstack([out, extra])
+
+
+def mesh_of(work, faces, exact=False):
     """The corset refined to the fewest faces of at least `faces`: 18,324 x 3^a x 4^b
     triangles, a (0 to 2) sqrt(3) splits then b midpoint subdivisions (73k, 1.17M, 4.69M,
-    10.6M, 18.8M ...)."""
+    10.6M, 18.8M ...); with `exact`, midpoint subdivisions only (b), the most of at most
+    `faces`, topped up to `faces` (top_up)."""
     base = 18324
     recipes = [(a, b) for a in range(3) for b in range(8)]
-    a, b = min((r for r in recipes if base * 3 ** r[0] * 4 ** r[1] >= faces),
-               key=lambda r: base * 3 ** r[0] * 4 ** r[1])
-    path = os.path.join(work, f"mesh_s{a}_m{b}.ply")
+    count = lambda r: base * 3 ** r[0] * 4 ** r[1]  # noqa: E731
+    if exact:
+        if faces < base:
+            sys.exit(f"--exact needs at least {base} faces (the corset's)")
+        a, b = max((r for r in recipes if count(r) <= faces and r[0] == 0), key=count)
+    else:
+        a, b = min((r for r in recipes if count(r) >= faces), key=count)
+    path = os.path.join(work, f"mesh_s{a}_m{b}" + (f"_exact{faces}" if exact else "") + ".ply")
     if not os.path.exists(path):
         m = trimesh.load(os.path.join(DATA, "scans", "corset", "Corset.gltf"), force="mesh", process=False)
         m.merge_vertices()
@@ -89,12 +119,15 @@ def mesh_of(work, faces):
             v, f = sqrt3_split(v, f)
         for _ in range(b):
             v, f = trimesh.remesh.subdivide(v, f)
+        if exact:
+            v, f = top_up(v, f, faces)
         trimesh.Trimesh(v, f, process=False).export(path)
     return path
 
 
-def scene_of(work, faces, photos, small=False):
-    scene = os.path.join(work, f"scene{faces}_{photos}" + ("_small" if small else ""))
+def scene_of(work, faces, photos, small=False, exact=False):
+    scene = os.path.join(work, f"scene{faces}_{photos}" + ("_small" if small else "")
+                         + ("_exact" if exact else ""))
     os.makedirs(scene, exist_ok=True)
     src = photos_of(work, photos, small)
     for d in ("images", "masks", "sparse"):
@@ -103,7 +136,7 @@ def scene_of(work, faces, photos, small=False):
             os.symlink(os.path.join(src, d), link)
     link = os.path.join(scene, "mesh.ply")
     if not os.path.exists(link):
-        os.symlink(mesh_of(work, faces), link)
+        os.symlink(mesh_of(work, faces, exact), link)
     return scene
 
 
@@ -112,15 +145,18 @@ def main():
     # --small: the 800 x 600 renders instead of 12 MP (memory against the photograph count
     # without hours of generating 12 MP photographs).
     small = "--small" in args
-    args = [a for a in args if a != "--small"]
+    # --exact: exactly FACES triangles (mesh_of) instead of the next refinement up.
+    exact = "--exact" in args
+    args = [a for a in args if a not in ("--small", "--exact")]
     work = args[0]
     points = [tuple(int(x) for x in p.split(":")) for p in args[1:]]
     print("| faces | photographs | pages | wall s | peak MB | estimate MB | atlas s | bind s | "
           "resample+merge s | restore s | synth s | largest stage peak MB (stage) |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for faces, photos in points:
-        scene = scene_of(work, faces, photos, small)
-        out = os.path.join(work, f"out{faces}_{photos}" + ("_small" if small else ""))
+        scene = scene_of(work, faces, photos, small, exact)
+        out = os.path.join(work, f"out{faces}_{photos}" + ("_small" if small else "")
+                           + ("_exact" if exact else ""))
         r = subprocess.run(["/usr/bin/time", "-v", BIN, "texture", scene, "-o", out, "-q"],
                            capture_output=True, text=True)
         if r.returncode != 0:

@@ -45,19 +45,61 @@ impl Texture {
                 break;
             }
             let (nw, nh) = ((w / 2).max(1), (h / 2).max(1));
-            let next = Rgba32FImage::from_fn(nw, nh, |x, y| {
-                let mut acc = [0.0f32; 4];
-                for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
-                    let p = l.get_pixel((2 * x + dx).min(w - 1), (2 * y + dy).min(h - 1));
-                    for k in 0..4 {
-                        acc[k] += 0.25 * p[k];
+            let next = if (w == 2 * nw || w == 1) && (h == 2 * nh || h == 1) {
+                Rgba32FImage::from_fn(nw, nh, |x, y| {
+                    let mut acc = [0.0f32; 4];
+                    for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                        let p = l.get_pixel((2 * x + dx).min(w - 1), (2 * y + dy).min(h - 1));
+                        for k in 0..4 {
+                            acc[k] += 0.25 * p[k];
+                        }
                     }
-                }
-                image::Rgba(acc)
-            });
+                    image::Rgba(acc)
+                })
+            } else {
+                Self::area_reduce(l, nw, nh)
+            };
             levels.push(next);
         }
         levels
+    }
+
+    /// `l` averaged down to `nw` x `nh` texels, each the mean of the part of `l` it covers
+    /// (fractional texels by their share). An odd side cannot halve into whole texels: taking
+    /// texels in pairs and dropping the last one shifted each level's content against its
+    /// texture coordinates, by up to a full texel of the level above at the far edge (a
+    /// 1659-texel atlas scored 2 dB lower held-out than the same texture resized to 2048).
+    fn area_reduce(l: &Rgba32FImage, nw: u32, nh: u32) -> Rgba32FImage {
+        let (w, h) = l.dimensions();
+        // Per destination index, the source indices and weights along one axis.
+        let taps = |n: u32, m: u32| -> Vec<Vec<(u32, f32)>> {
+            let s = n as f64 / m as f64;
+            (0..m)
+                .map(|i| {
+                    let (a, b) = (i as f64 * s, (i + 1) as f64 * s);
+                    (a.floor() as u32..(b.ceil() as u32).min(n))
+                        .map(|j| {
+                            let o = (b.min(j as f64 + 1.0) - a.max(j as f64)).max(0.0);
+                            (j, (o / s) as f32)
+                        })
+                        .filter(|&(_, wt)| wt > 0.0)
+                        .collect()
+                })
+                .collect()
+        };
+        let (tx, ty) = (taps(w, nw), taps(h, nh));
+        Rgba32FImage::from_fn(nw, nh, |x, y| {
+            let mut acc = [0.0f32; 4];
+            for &(sy, wy) in &ty[y as usize] {
+                for &(sx, wx) in &tx[x as usize] {
+                    let p = l.get_pixel(sx, sy);
+                    for k in 0..4 {
+                        acc[k] += wx * wy * p[k];
+                    }
+                }
+            }
+            image::Rgba(acc)
+        })
     }
 
     /// Loads a mesh's texture from wherever it lives.
@@ -360,4 +402,45 @@ pub fn render_scene(
     }
     staged.commit()?;
     Ok(scene.photos.len())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A linear ramp in u (red) and in v (green) is reproduced within a tenth of a full-size
+    /// texel by every level's bilinear lookup away from the borders, whatever the sides: each
+    /// level must cover the same texture coordinates as the full image. Pairing texels and
+    /// dropping an odd side's last one misses by u / 13 at the first level of a 13-texel side.
+    #[test]
+    fn mip_levels_keep_texture_coordinates_for_odd_and_even_sides() {
+        for (w, h) in [(13u32, 7u32), (12, 8), (9, 16)] {
+            let img = image::Rgba32FImage::from_fn(w, h, |x, y| {
+                image::Rgba([
+                    (x as f32 + 0.5) / w as f32,
+                    1.0 - (y as f32 + 0.5) / h as f32,
+                    0.5,
+                    1.0,
+                ])
+            });
+            let tex = Texture::new(&DynamicImage::ImageRgba32F(img));
+            for level in 1..=2u32 {
+                let (lw, lh) = tex.pages[0][level as usize].dimensions();
+                for (u, v) in [(0.4, 0.45), (0.5, 0.5), (0.6, 0.55)] {
+                    // Inside the level's texel centres: no clamping at a border.
+                    let inside =
+                        |t: f64, n: u32| t * n as f64 >= 0.5 && t * n as f64 <= n as f64 - 0.5;
+                    if !(inside(u, lw) && inside(v, lh)) {
+                        continue;
+                    }
+                    let c = tex.sample(Vector2::new(u, v), (1u32 << level) as f64);
+                    assert!(
+                        (c[0] as f64 - u).abs() < 0.1 / w as f64
+                            && (c[1] as f64 - v).abs() < 0.1 / h as f64,
+                        "{w}x{h} level {level} at ({u}, {v}): {c:?}"
+                    );
+                }
+            }
+        }
+    }
 }
