@@ -38,6 +38,12 @@ pub struct FlattenOptions {
     /// A chart starting at most this stretched gets a short minimisation (60 L-BFGS
     /// iterations, 2 sweeps). Default: 1.01.
     pub light_below: f64,
+    /// A chart (of more than one face) whose starting map has L2 stretch above this is split
+    /// without minimising it: minimisation would not bring it within `max_chart_stretch`.
+    /// Default: 10. Slivers give starts of 3-6 that minimise to about 1; splitting everything
+    /// above 2.5 at once had made 6,846 charts of a sliver-rich 1.48M-face mesh, 2,785 now
+    /// (docs/decisions.md, "Charts split before minimising").
+    pub split_above: f64,
 }
 
 impl Default for FlattenOptions {
@@ -48,6 +54,7 @@ impl Default for FlattenOptions {
             max_chart_stretch: 1.25,
             skip_below: 1.001,
             light_below: 1.01,
+            split_above: 10.0,
         }
     }
 }
@@ -160,9 +167,8 @@ fn flatten_chart(
     let mut map = param::flatten(mesh, &chart);
     let start = param::stretch(mesh, std::slice::from_ref(&map));
     // Charts that already flatten almost isometrically need no minimisation, and charts
-    // far above the split threshold are split at once: minimisation brings L2 down by
-    // a factor of at most 1.5 on the meshes we measured (docs/decisions.md).
-    let hopeless = start.l2 > 2.0 * opts.max_chart_stretch && chart.len() > 1;
+    // far above the split threshold are split at once (docs/decisions.md).
+    let hopeless = start.l2 > opts.split_above && chart.len() > 1;
     if !hopeless && (start.l2 > opts.skip_below || opts.stretch.view_dir.is_some()) {
         // Nearly isometric starts converge in a few dozen iterations; the full budget goes
         // to charts with real stretch to remove.
@@ -856,6 +862,156 @@ mod tests {
             assert_eq!(advanced, starts[0].1);
             assert_eq!(finished, 1);
         }
+    }
+
+    /// A chart of 18 faces from a sliver-rich mesh (the corset after three sqrt(3) steps
+    /// without smoothing: slivers along its boundary), whose flip-free start has L2 stretch
+    /// 3.5. Minimised, it is one chart within the bound; split at once at starts above 2.5 (the
+    /// old rule), it became three. Such charts multiplied a 1.48M-face mesh's charts by 2.5.
+    #[test]
+    fn sliver_charts_are_minimised_before_they_are_split() {
+        let positions: Vec<Point3<f64>> = [
+            [
+                0.011478147469460964,
+                0.010276311077177525,
+                -0.00013822864275425673,
+            ],
+            [
+                0.011383814737200737,
+                0.010267363861203194,
+                -0.0004126916464883834,
+            ],
+            [
+                0.011626494117081165,
+                0.010298081673681736,
+                0.00016398286970797926,
+            ],
+            [
+                0.011549483053386211,
+                0.01029337290674448,
+                -0.0001723236928228289,
+            ],
+            [
+                0.011255905032157898,
+                0.010272610001266003,
+                -0.000586534442845732,
+            ],
+            [
+                0.011367559432983398,
+                0.010285794734954834,
+                -0.000373915012460202,
+            ],
+            [
+                0.01116575300693512,
+                0.010309109464287758,
+                -0.0006938521401025355,
+            ],
+            [
+                0.011304480023682117,
+                0.010351063683629036,
+                -0.0003611674765124917,
+            ],
+            [
+                0.011458777822554111,
+                0.010271962732076645,
+                -0.0002896642545238137,
+            ],
+            [
+                0.011123813688755035,
+                0.010232408531010151,
+                -0.0009275226038880646,
+            ],
+            [
+                0.01128815021365881,
+                0.010258368216454983,
+                -0.0006892586243338883,
+            ],
+            [
+                0.011471141129732132,
+                0.01028861477971077,
+                -0.0005107342149131,
+            ],
+            [
+                0.011715891771018505,
+                0.01031841617077589,
+                0.00007047851249808446,
+            ],
+            [
+                0.011016339994966984,
+                0.010264670476317406,
+                -0.000972996698692441,
+            ],
+            [
+                0.011672784574329853,
+                0.010323147289454937,
+                -0.0003919494047295302,
+            ],
+            [
+                0.011288909241557121,
+                0.01047211792320013,
+                -0.00009998599853133783,
+            ],
+            [
+                0.011460883542895317,
+                0.010419445112347603,
+                0.00014963769353926182,
+            ],
+            [
+                0.011888734996318817,
+                0.010363658890128136,
+                0.0005085531738586724,
+            ],
+        ]
+        .iter()
+        .map(|p: &[f64; 3]| Point3::new(p[0], p[1], p[2]))
+        .collect();
+        let faces: Vec<[crate::mesh::VertexId; 3]> = [
+            [0, 1, 2],
+            [3, 2, 1],
+            [0, 4, 1],
+            [0, 5, 4],
+            [6, 4, 5],
+            [6, 5, 7],
+            [8, 7, 5],
+            [9, 1, 4],
+            [9, 10, 1],
+            [3, 1, 10],
+            [3, 10, 11],
+            [3, 11, 12],
+            [9, 4, 13],
+            [6, 13, 4],
+            [14, 12, 11],
+            [15, 7, 16],
+            [8, 16, 7],
+            [14, 17, 12],
+        ]
+        .iter()
+        .map(|f: &[u32; 3]| f.map(crate::mesh::VertexId))
+        .collect();
+        let mesh = Mesh {
+            positions,
+            faces,
+            ..Default::default()
+        };
+        let all: Vec<crate::mesh::FaceId> = (0..mesh.num_faces() as u32)
+            .map(crate::mesh::FaceId)
+            .collect();
+        let start = param::stretch(&mesh, &[param::flatten(&mesh, &all)]);
+        let opts = FlattenOptions::default();
+        assert!(
+            start.l2 > 2.0 * opts.max_chart_stretch && start.l2 < opts.split_above,
+            "{start:?}"
+        );
+        let maps = flatten_all(&mesh, &opts);
+        assert_eq!(maps.len(), 1);
+        let s = param::stretch(&mesh, &maps);
+        assert!(s.l2 <= opts.max_chart_stretch, "{s:?}");
+        assert_eq!((s.flipped, s.zero_area), (0, 0));
+        let eager = FlattenOptions {
+            split_above: 2.0 * opts.max_chart_stretch,
+            ..opts
+        };
+        assert!(flatten_all(&mesh, &eager).len() > 1);
     }
 
     #[test]
