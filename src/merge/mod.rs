@@ -138,6 +138,7 @@ pub struct MergeOptions {
     /// 0.375).
     pub a: f32,
     /// Level chart borders after blending ([`crate::level`]; multiband only). Default: true.
+    /// Texturing with restoration levels once, after restoration ([`relevel`]), instead.
     pub level_seams: bool,
     /// [`Masks::BestView`]: per face, the photographs of largest weight sampled at every
     /// texel; the others are sampled at every other texel in both directions (a quarter of
@@ -308,7 +309,7 @@ pub struct MergeStats {
     /// Photographs decoded for this page: those some face on it samples (the others have
     /// nothing to give it).
     pub photos_decoded: usize,
-    /// Chart-border levelling after the merge, if it ran.
+    /// Chart-border levelling after the merge, if it ran (texturing without restoration).
     pub seam_levelling: Option<level::LevelStats>,
     /// The same on the restored atlas ([`relevel`]), if it ran (set by the caller).
     pub seam_levelling_after_restore: Option<level::LevelStats>,

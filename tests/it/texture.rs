@@ -450,7 +450,8 @@ fn coarse_sampling_of_the_lighter_views_keeps_the_texture() {
     );
 }
 
-/// Deep per-chart pyramids open seams where charts meet; seam levelling closes them.
+/// Deep per-chart pyramids open seams where charts meet; seam levelling closes them, after
+/// restoration or, without it, after the merge.
 #[test]
 fn seam_levelling_closes_chart_borders_that_deep_pyramids_open() {
     let s = torus();
@@ -464,7 +465,10 @@ fn seam_levelling_closes_chart_borders_that_deep_pyramids_open() {
         let seams = r.report.pages[0].seams;
         assert!(seams.chart_border_samples > 1000, "{seams:?}");
         ratios.push(seams.chart_border_ratio);
-        let st = r.report.pages[0].merging.seam_levelling;
+        // With restoration (on here) borders are levelled once, after it.
+        let merging = &r.report.pages[0].merging;
+        assert!(merging.seam_levelling.is_none());
+        let st = merging.seam_levelling_after_restore;
         assert_eq!(st.is_some(), level);
         if let Some(st) = st {
             assert!(st.border_step_after < 0.5 * st.border_step_before, "{st:?}");
@@ -472,6 +476,16 @@ fn seam_levelling_closes_chart_borders_that_deep_pyramids_open() {
     }
     assert!(ratios[0] > 1.5, "{ratios:?}");
     assert!(ratios[1] < 1.2, "{ratios:?}");
+    // Without restoration the merge levels them itself.
+    let mut opts = sized(1024);
+    opts.merge.levels = 6;
+    opts.restoration = scantex::pipeline::Restoration::Off;
+    let r = texture(mesh, &s.photos, &opts, &Silent).unwrap();
+    let merging = &r.report.pages[0].merging;
+    assert!(merging.seam_levelling_after_restore.is_none());
+    let st = merging.seam_levelling.expect("levelled after the merge");
+    assert!(st.border_step_after < 0.5 * st.border_step_before, "{st:?}");
+    assert!(r.report.pages[0].seams.chart_border_ratio < 1.2);
 }
 
 /// Runs `scantex texture -q` with `args` from the repository root; returns whether it
