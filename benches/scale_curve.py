@@ -17,8 +17,9 @@ midpoint subdivisions alone (sqrt(3) steps repeated leave slivers along the cors
 edges, which split charts: 2,776 charts for 1.48M faces, against 841 here), topped up by
 splitting evenly spread triangles at their centroids (1.5M: 1,172,736 + 2 x 163,632).
 Scenes are kept in <workdir> and reused (the photographs of one count are shared by every
-face count). One run of `scantex texture <scene> -o out -q` (the defaults: --size auto, the default memory limit)
-per point, timed by /usr/bin/time; the per-stage figures are report.json's.
+face count). One run of `scantex texture <scene> -o out -q` (the defaults: --size auto, the
+default memory limit) per point, timed by /usr/bin/time; the per-stage figures are
+report.json's.
 """
 import json
 import os
