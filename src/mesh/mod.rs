@@ -382,6 +382,41 @@ pub struct Topology {
 }
 
 #[cfg(test)]
+impl Mesh {
+    /// A tube of radius 1 along z from -1 to 1, `around` vertices per ring and `rings` rings
+    /// of faces; with `caps`, closed by a fan at each end. Vertex `r * around + k` lies at
+    /// angle k / around turns on ring r.
+    pub(crate) fn tube(around: u32, rings: u32, caps: bool) -> Mesh {
+        let mut m = Mesh::default();
+        for r in 0..=rings {
+            let z = -1.0 + 2.0 * r as f64 / rings as f64;
+            for k in 0..around {
+                let a = std::f64::consts::TAU * k as f64 / around as f64;
+                m.positions.push(Point3::new(a.cos(), a.sin(), z));
+            }
+        }
+        let v = |r: u32, k: u32| VertexId(r * around + k % around);
+        for r in 0..rings {
+            for k in 0..around {
+                m.faces.push([v(r, k), v(r, k + 1), v(r + 1, k + 1)]);
+                m.faces.push([v(r, k), v(r + 1, k + 1), v(r + 1, k)]);
+            }
+        }
+        if caps {
+            for (ring, z) in [(0, -1.0), (rings, 1.0)] {
+                let c = VertexId(m.positions.len() as u32);
+                m.positions.push(Point3::new(0.0, 0.0, z));
+                for k in 0..around {
+                    let (a, b) = (v(ring, k), v(ring, k + 1));
+                    m.faces.push(if z > 0.0 { [a, b, c] } else { [b, a, c] });
+                }
+            }
+        }
+        m
+    }
+}
+
+#[cfg(test)]
 mod tests {
     use super::*;
 

@@ -364,29 +364,12 @@ pub(super) fn colour(data: &[f32], u: &Under) -> [f32; 3] {
 mod tests {
     use super::*;
     use crate::atlas::{build, AtlasOptions};
-    use crate::mesh::VertexId;
     use std::f64::consts::TAU;
 
     /// An open tube of radius 1 along z from -1 to 1 (64 segments around, 8 rings): not a
     /// disk, so the atlas has to cut it.
     fn tube() -> Mesh {
-        let (around, rings) = (64u32, 8u32);
-        let mut m = Mesh::default();
-        for r in 0..=rings {
-            let z = -1.0 + 2.0 * r as f64 / rings as f64;
-            for k in 0..around {
-                let a = TAU * k as f64 / around as f64;
-                m.positions.push(Point3::new(a.cos(), a.sin(), z));
-            }
-        }
-        let v = |r: u32, k: u32| VertexId(r * around + k % around);
-        for r in 0..rings {
-            for k in 0..around {
-                m.faces.push([v(r, k), v(r, k + 1), v(r + 1, k + 1)]);
-                m.faces.push([v(r, k), v(r + 1, k + 1), v(r + 1, k)]);
-            }
-        }
-        m
+        Mesh::tube(64, 8, false)
     }
 
     /// The tube's colour at angle `a` and height `z`: red waves along the arc (twelve around),

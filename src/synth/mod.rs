@@ -1,6 +1,7 @@
 //! Stage 6: exemplar patch synthesis on the surface for the regions no photograph saw and
 //! restoration left (`restore::Unrestored::regions`). Each region gets a smooth low band that
-//! continues the colours at its rim and detail from an exemplar (a square of the surface the
+//! continues the colours at its rim from the colour photographed surface of the same shape
+//! has (`prior`) and detail from an exemplar (a square of the surface the
 //! photographs saw, flattened onto its tangent plane and chosen by orientation, colour and
 //! place, or the user's image), pasted in
 //! overlapping surface patches and blended so that the exemplar's histogram is kept
@@ -10,6 +11,7 @@
 mod flat;
 mod pick;
 pub mod plane;
+mod prior;
 mod surface;
 
 use crate::atlas::Atlas;
@@ -373,6 +375,27 @@ pub fn synthesize(
         built = crate::mesh::topology::face_adjacency(mesh);
         &built
     };
+    // The photographed vertices outside the regions (every corner of a face they lie on is
+    // bound) describe what colour each shape of the object has.
+    let mut seen = vec![false; mesh.num_vertices()];
+    for (f, fv) in mesh.faces.iter().enumerate() {
+        if res.classes[f] != crate::resample::FaceClass::Red {
+            for v in fv {
+                seen[v.idx()] = true;
+            }
+        }
+    }
+    for (f, fv) in mesh.faces.iter().enumerate() {
+        if member[f] {
+            for v in fv {
+                seen[v.idx()] = false;
+            }
+        }
+    }
+    let prior = prior::ShapePrior::new(mesh, normals, &up, |v| {
+        seen[v].then(|| res.vertex_colors[v])
+    });
+    drop(seen);
     let low = surface::low_band(
         mesh,
         atlas,
@@ -381,7 +404,9 @@ pub fn synthesize(
         &member,
         adj,
         &res.vertex_colors,
+        prior.as_ref(),
     );
+    drop(prior);
     report.seconds_low_band = t.elapsed().as_secs_f64();
     t = Instant::now();
     // Exemplars: the user's, or per region the surface square most like its rim.

@@ -7,6 +7,7 @@
 //! show, because both sides of a border are the same points of the surface.
 
 use super::plane::{blend, bump, bump_squared, choose_offset, Exemplar};
+use super::prior::ShapePrior;
 use crate::atlas::Atlas;
 use crate::mesh::topology::NO_FACE;
 use crate::mesh::{FaceId, Mesh};
@@ -127,14 +128,16 @@ impl LowBand<'_> {
     }
 }
 
-/// The low band over the regions: the vertex-colour fill (`init`, which carries colour from
-/// the nearest photographed vertices) plus a harmonic correction (uniform weights, on the
+/// The low band over the regions: a start (the vertex-colour fill `init`, which carries
+/// colour from the nearest photographed vertices, moved towards `prior`'s colour of surface
+/// of the same shape where the prior is trusted) plus a harmonic correction (uniform weights, on the
 /// regions' faces) that makes it meet, at every region corner, the per-channel median colour
 /// of the texels around that corner's vertex on the same side of any crease
 /// ([`CREASE_COS`]): those of the faces outside the regions (as restored or photographed)
 /// and the photographed ones of the region faces (`source` says which). Corners of a vertex
-/// joined through smooth edges share one value; a region with no rim keeps `init` (a small
+/// joined through smooth edges share one value; a region with no rim keeps its start (a small
 /// pull towards no correction keeps the system definite). `adj` is the face adjacency.
+#[allow(clippy::too_many_arguments)]
 pub(super) fn low_band<'a>(
     mesh: &Mesh,
     atlas: &Atlas,
@@ -143,6 +146,7 @@ pub(super) fn low_band<'a>(
     member: &[bool],
     adj: &[[u32; 3]],
     init: &'a [[f32; 3]],
+    prior: Option<&ShapePrior>,
 ) -> LowBand<'a> {
     let nv = mesh.num_vertices();
     let nf = mesh.num_faces();
@@ -245,7 +249,28 @@ pub(super) fn low_band<'a>(
         .collect();
     drop(texels);
     let mut fixed = vec![false; ng];
-    let init_g: Vec<[f32; 3]> = group_vertex.iter().map(|&v| init[v as usize]).collect();
+    let mut init_g: Vec<[f32; 3]> = group_vertex.iter().map(|&v| init[v as usize]).collect();
+    if let Some(prior) = prior {
+        // Inside the regions the band starts from the colour of photographed surface of the
+        // same shape where that is trusted, each side of a crease with its own facing.
+        let mut facing = vec![Vector3::zeros(); ng];
+        for (i, &f) in involved.iter().enumerate() {
+            let n = mesh.face_normal_area(FaceId(f));
+            for k in 0..3 {
+                facing[group[3 * i + k] as usize] += n;
+            }
+        }
+        init_g
+            .par_iter_mut()
+            .zip(facing.par_iter())
+            .enumerate()
+            .filter(|(g, _)| group_in_region[*g])
+            .for_each(|(g, (value, n))| {
+                let p = &mesh.positions[group_vertex[g] as usize];
+                let n = n.try_normalize(1e-300).unwrap_or_else(Vector3::zeros);
+                *value = prior.at(p, &n, *value);
+            });
+    }
     let mut out: Vec<[f32; 3]> = init_g.clone();
     for (g, m) in medians {
         fixed[g as usize] = true;
@@ -883,7 +908,7 @@ mod tests {
         let adj = crate::mesh::topology::face_adjacency(&mesh);
         let init = vec![[0.5f32; 3]; mesh.num_vertices()];
         let source = sources(&atlas, &member);
-        let low = low_band(&mesh, &atlas, &color, &source, &member, &adj, &init);
+        let low = low_band(&mesh, &atlas, &color, &source, &member, &adj, &init, None);
         let mut fixed = 0;
         for f in (0..mesh.num_faces()).filter(|&f| member[f]) {
             for k in 0..3 {
@@ -934,7 +959,7 @@ mod tests {
             )
         });
         for (source, want) in [(&photographed, Some(1.0)), (&unseen, None)] {
-            let low = low_band(&mesh, &atlas, &color, source, &member, &adj, &init);
+            let low = low_band(&mesh, &atlas, &color, source, &member, &adj, &init, None);
             for (f, fv) in mesh.faces.iter().enumerate() {
                 for k in 0..3 {
                     assert_eq!(low.fixed_corner(f as u32, k).map(|c| c[0]), want);
@@ -972,7 +997,7 @@ mod tests {
             let adj = crate::mesh::topology::face_adjacency(&mesh);
             let init = vec![[0.5f32; 3]; mesh.num_vertices()];
             let source = sources(&atlas, &member);
-            let low = low_band(&mesh, &atlas, &color, &source, &member, &adj, &init);
+            let low = low_band(&mesh, &atlas, &color, &source, &member, &adj, &init, None);
             for f in (0..mesh.num_faces()).filter(|&f| member[f]) {
                 let fv = mesh.faces[f];
                 for (k, v) in fv.iter().enumerate() {
