@@ -99,20 +99,93 @@ pub(crate) fn split(channel: &[f32], w: usize, h: usize, kappa: usize) -> (Vec<f
         // the image itself, exactly. The automatic rule picks 0 for most atlas crops.
         return (vec![0.0; channel.len()], channel.to_vec());
     }
-    let dct = Dct2::<f32>::new(w, h);
+    // The low band's coefficients form a U x V corner of the plane (u < kappa w / S).
+    let (nu, nv) = (
+        (kappa * w).div_ceil(w.max(h)).min(w),
+        (kappa * h).div_ceil(w.max(h)).min(h),
+    );
+    let low = if nu + nv <= DIRECT_MAX {
+        low_direct(channel, w, h, nu, nv)
+    } else {
+        low_by_transform(channel, w, h, kappa)
+    };
+    let high = channel.iter().zip(&low).map(|(a, b)| a - b).collect();
+    (low, high)
+}
+
+/// The low band of the first `kappa` subbands through the whole plane's transform and back.
+fn low_by_transform<T: DctNum>(channel: &[T], w: usize, h: usize, kappa: usize) -> Vec<T> {
+    let dct = Dct2::<T>::new(w, h);
     let mut c = channel.to_vec();
     dct.forward(&mut c);
     for v in 0..h {
         for u in 0..w {
             if !in_low_band(u, v, w, h, kappa) {
-                c[v * w + u] = 0.0;
+                c[v * w + u] = T::zero();
             }
         }
     }
     dct.inverse(&mut c);
-    let low = c;
-    let high = channel.iter().zip(&low).map(|(a, b)| a - b).collect();
-    (low, high)
+    c
+}
+
+/// Up to this many low-band coefficients along both axes together, [`split`] projects onto
+/// them directly (w h (U + V) products each way) instead of transforming the whole plane: the
+/// automatic kappa is at most a few subbands, and two full transforms of every crop were half
+/// of restoration's split time on the corset scene (`docs/benchmarks.md`).
+const DIRECT_MAX: usize = 32;
+
+/// The orthonormal DCT-II basis functions 0..n_k on n samples, row-major (k, x).
+fn basis(n: usize, n_k: usize) -> Vec<f64> {
+    let mut b = vec![0f64; n_k * n];
+    for k in 0..n_k {
+        let a = if k == 0 {
+            (1.0 / n as f64).sqrt()
+        } else {
+            (2.0 / n as f64).sqrt()
+        };
+        for x in 0..n {
+            b[k * n + x] =
+                a * (std::f64::consts::PI * (2 * x + 1) as f64 * k as f64 / (2 * n) as f64).cos();
+        }
+    }
+    b
+}
+
+/// The inverse transform of the first `nu` x `nv` coefficients of `channel`'s orthonormal
+/// 2D DCT-II (the others zero): the projection onto those basis images, separably.
+fn low_direct(channel: &[f32], w: usize, h: usize, nu: usize, nv: usize) -> Vec<f32> {
+    let (bx, by) = (basis(w, nu), basis(h, nv));
+    // Along the rows: r(y, u) = sum_x X(y, x) phi_u(x).
+    let r: Vec<f64> = channel
+        .par_chunks(w)
+        .flat_map_iter(|row| {
+            (0..nu).map(|u| {
+                let b = &bx[u * w..u * w + w];
+                row.iter().zip(b).map(|(&a, &p)| a as f64 * p).sum::<f64>()
+            })
+        })
+        .collect();
+    // Down the columns, and back: s(y, u) = sum_v phi_v(y) sum_y' phi_v(y') r(y', u).
+    let mut c = vec![0f64; nv * nu];
+    for v in 0..nv {
+        for y in 0..h {
+            let p = by[v * h + y];
+            for u in 0..nu {
+                c[v * nu + u] += p * r[y * nu + u];
+            }
+        }
+    }
+    let mut out = vec![0f32; w * h];
+    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        let s: Vec<f64> = (0..nu)
+            .map(|u| (0..nv).map(|v| by[v * h + y] * c[v * nu + u]).sum())
+            .collect();
+        for (x, o) in row.iter_mut().enumerate() {
+            *o = (0..nu).map(|u| s[u] * bx[u * w + x]).sum::<f64>() as f32;
+        }
+    });
+    out
 }
 
 /// The standard deviation of the elements of the autocorrelation of the high band, for each
@@ -217,6 +290,37 @@ mod tests {
         let (l1, _) = split(&img, w, h, 1);
         let mean = img.iter().sum::<f32>() / img.len() as f32;
         assert!(l1.iter().all(|v| (v - mean).abs() < 1e-5));
+    }
+
+    #[test]
+    fn the_direct_projection_is_the_transforms_low_band() {
+        // Non-square crops, as restoration cuts them: the low band projected directly must be
+        // the whole transform's with the other coefficients zeroed.
+        let mut s = 11u64;
+        for (w, h) in [(97, 61), (40, 128), (64, 64)] {
+            let img: Vec<f32> = (0..w * h)
+                .map(|i| {
+                    s = s
+                        .wrapping_mul(6364136223846793005)
+                        .wrapping_add(1442695040888963407);
+                    (s >> 40) as f32 / (1u64 << 24) as f32 + 0.002 * (i % w) as f32
+                })
+                .collect();
+            for kappa in [1, 2, 3, 5, 9] {
+                let (low, high) = split(&img, w, h, kappa);
+                let wide: Vec<f64> = img.iter().map(|&v| v as f64).collect();
+                let c = low_by_transform(&wide, w, h, kappa);
+                for i in 0..w * h {
+                    assert!(
+                        (low[i] as f64 - c[i]).abs() < 1e-5,
+                        "{w}x{h} kappa {kappa} at {i}: {} against {}",
+                        low[i],
+                        c[i]
+                    );
+                    assert!((low[i] + high[i] - img[i]).abs() < 1e-6);
+                }
+            }
+        }
     }
 
     #[test]
