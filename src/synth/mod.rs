@@ -375,27 +375,7 @@ pub fn synthesize(
         built = crate::mesh::topology::face_adjacency(mesh);
         &built
     };
-    // The photographed vertices outside the regions (every corner of a face they lie on is
-    // bound) describe what colour each shape of the object has.
-    let mut seen = vec![false; mesh.num_vertices()];
-    for (f, fv) in mesh.faces.iter().enumerate() {
-        if res.classes[f] != crate::resample::FaceClass::Red {
-            for v in fv {
-                seen[v.idx()] = true;
-            }
-        }
-    }
-    for (f, fv) in mesh.faces.iter().enumerate() {
-        if member[f] {
-            for v in fv {
-                seen[v.idx()] = false;
-            }
-        }
-    }
-    let prior = prior::ShapePrior::new(mesh, normals, &up, |v| {
-        seen[v].then(|| res.vertex_colors[v])
-    });
-    drop(seen);
+    let prior = prior::ShapePrior::photographed(mesh, normals, &up, res, &member);
     let low = surface::low_band(
         mesh,
         atlas,

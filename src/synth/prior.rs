@@ -9,6 +9,7 @@
 //! from surface of the same shape").
 
 use crate::mesh::Mesh;
+use crate::resample::{FaceClass, Resampled};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Point3, Vector3};
 use std::num::NonZero;
@@ -35,6 +36,34 @@ pub(super) struct ShapePrior {
 }
 
 impl ShapePrior {
+    /// The prior over the photographed vertices outside the regions (`member` per face):
+    /// those of a face whose corners are all bound (not [`FaceClass::Red`]), with their
+    /// binding colours.
+    pub(super) fn photographed(
+        mesh: &Mesh,
+        normals: &[Vector3<f64>],
+        up: &Vector3<f64>,
+        res: &Resampled,
+        member: &[bool],
+    ) -> Option<ShapePrior> {
+        let mut seen = vec![false; mesh.num_vertices()];
+        for (f, fv) in mesh.faces.iter().enumerate() {
+            if res.classes[f] != FaceClass::Red {
+                for v in fv {
+                    seen[v.idx()] = true;
+                }
+            }
+        }
+        for (f, fv) in mesh.faces.iter().enumerate() {
+            if member[f] {
+                for v in fv {
+                    seen[v.idx()] = false;
+                }
+            }
+        }
+        ShapePrior::new(mesh, normals, up, |v| seen[v].then(|| res.vertex_colors[v]))
+    }
+
     /// The prior over the vertices `seen` gives a colour for (the photographed ones outside
     /// the regions), with their unit `normals`; `None` when there are none.
     pub(super) fn new(
