@@ -95,30 +95,7 @@ impl ShapePrior {
             frame,
         })
     }
-}
 
-/// The object's axis (along up through its bounding box's centre) and the descriptor's unit.
-struct Frame {
-    centre: Point3<f64>,
-    unit: f64,
-    up: Vector3<f64>,
-}
-
-impl Frame {
-    /// Height along up and distance from the axis in units, facing in [`FACING_SCALE`]s.
-    fn descriptor(&self, p: &Point3<f64>, n: &Vector3<f64>) -> [f32; 3] {
-        let q = p - self.centre;
-        let h = q.dot(&self.up);
-        let r = (q - self.up * h).norm();
-        [
-            (h / self.unit) as f32,
-            (r / self.unit) as f32,
-            (n.dot(&self.up) / FACING_SCALE) as f32,
-        ]
-    }
-}
-
-impl ShapePrior {
     /// The colour at a point `p` with unit normal `n`: the photographed vertices' of that
     /// shape, blended with `fallback` by how far they lie and how much they disagree.
     pub(super) fn at(&self, p: &Point3<f64>, n: &Vector3<f64>, fallback: [f32; 3]) -> [f32; 3] {
@@ -150,6 +127,27 @@ impl ShapePrior {
             .max(0.0);
         let trust = (-d0 / (2.0 * REACH * REACH) - spread / (2.0 * SPREAD * SPREAD)).exp() as f32;
         std::array::from_fn(|j| trust * mean[j] as f32 + (1.0 - trust) * fallback[j])
+    }
+}
+
+/// The object's axis (along up through its bounding box's centre) and the descriptor's unit.
+struct Frame {
+    centre: Point3<f64>,
+    unit: f64,
+    up: Vector3<f64>,
+}
+
+impl Frame {
+    /// Height along up and distance from the axis in units, facing in [`FACING_SCALE`]s.
+    fn descriptor(&self, p: &Point3<f64>, n: &Vector3<f64>) -> [f32; 3] {
+        let q = p - self.centre;
+        let h = q.dot(&self.up);
+        let r = (q - self.up * h).norm();
+        [
+            (h / self.unit) as f32,
+            (r / self.unit) as f32,
+            (n.dot(&self.up) / FACING_SCALE) as f32,
+        ]
     }
 }
 
