@@ -41,8 +41,8 @@ pub struct FlattenOptions {
     /// A chart (of more than one face) whose starting map has L2 stretch above this is split
     /// without minimising it: minimisation would not bring it within `max_chart_stretch`.
     /// Default: 10. Slivers give starts of 3-6 that minimise to about 1; splitting everything
-    /// above 2.5 at once had made 6,846 charts of a sliver-rich 1.48M-face mesh, 2,785 now
-    /// (docs/decisions.md, "Charts split before minimising").
+    /// above 2.5 at once had made 6,846 charts of a sliver-rich 1.48M-face mesh, 2,776 now
+    /// (`scantex param` at 8192; docs/decisions.md, "Charts split before minimising").
     pub split_above: f64,
 }
 

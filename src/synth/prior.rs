@@ -66,7 +66,7 @@ impl ShapePrior {
 
     /// The prior over the vertices `seen` gives a colour for (the photographed ones outside
     /// the regions), with their unit `normals`; `None` when there are none.
-    pub(super) fn new(
+    fn new(
         mesh: &Mesh,
         normals: &[Vector3<f64>],
         up: &Vector3<f64>,

@@ -6,20 +6,21 @@ use crate::common;
 
 use scantex::eval::{evaluate_scene, EvalOptions, UnseenScore};
 use scantex::pipeline::{AtlasSize, TextureOptions};
-use scantex::sample::SampleOptions;
+use scantex::sample::{SampleObject, SampleOptions};
 use scantex::scene::SceneSpec;
 use scantex::synth::ExemplarSource;
 use std::path::Path;
 use std::process::Command;
 
-/// The sample torus photographed from 160 degrees of azimuth only, with held-out views all
-/// around and their unseen-surface masks.
-fn one_sided_torus(dir: &Path) {
+/// The sample `object` photographed from 160 degrees of azimuth only, with held-out views
+/// all around and their unseen-surface masks.
+fn one_sided(dir: &Path, object: SampleObject) {
     let opts = SampleOptions {
         photos: 12,
         heldout: 6,
         size: (480, 360),
         unseen_sector: 200.0,
+        object,
         ..Default::default()
     };
     scantex::sample::generate_to(None, &opts, dir).unwrap();
@@ -49,7 +50,7 @@ fn the_true_texture_scores_as_the_truth_where_no_photograph_saw() {
     // background there the truth had scored detail 1.14, Gram 0.67 and rim 1.71.
     let dir = tempfile::tempdir().unwrap();
     let scene = dir.path().join("scene");
-    one_sided_torus(&scene);
+    one_sided(&scene, SampleObject::Torus);
     let s = unseen_scores(&scene, &scene.join("truth/model.glb"));
     assert!(s.coverage > 0.999, "{s:?}");
     assert!((s.detail_ratio - 1.0).abs() < 0.05, "{s:?}");
@@ -62,7 +63,7 @@ fn the_true_texture_scores_as_the_truth_where_no_photograph_saw() {
 fn an_unseen_side_gets_texture_not_a_smear() {
     let dir = tempfile::tempdir().unwrap();
     let scene = dir.path().join("scene");
-    one_sided_torus(&scene);
+    one_sided(&scene, SampleObject::Torus);
     assert!(scene.join("heldout/unseen/heldout_01.png").is_file());
     let mut opts = TextureOptions {
         size: AtlasSize::Fixed(1024),
@@ -129,15 +130,7 @@ fn the_unseen_side_takes_the_colour_of_surface_of_the_same_shape() {
     // starts from surface of the same shape").
     let dir = tempfile::tempdir().unwrap();
     let scene = dir.path().join("scene");
-    let sample = SampleOptions {
-        photos: 12,
-        heldout: 6,
-        size: (480, 360),
-        unseen_sector: 200.0,
-        object: scantex::sample::SampleObject::Jar,
-        ..Default::default()
-    };
-    scantex::sample::generate_to(None, &sample, &scene).unwrap();
+    one_sided(&scene, SampleObject::Jar);
     let mut opts = TextureOptions {
         size: AtlasSize::Fixed(1024),
         ..Default::default()
@@ -168,7 +161,7 @@ fn the_unseen_side_takes_the_colour_of_surface_of_the_same_shape() {
 fn stage_six_gives_the_same_bytes_on_one_thread() {
     let dir = tempfile::tempdir().unwrap();
     let scene = dir.path().join("scene");
-    one_sided_torus(&scene);
+    one_sided(&scene, SampleObject::Torus);
     let opts = TextureOptions {
         size: AtlasSize::Fixed(512),
         ..Default::default()
@@ -226,7 +219,7 @@ impl scantex::progress::Progress for Recorder {
 fn every_long_stage_reports_progress_to_its_end() {
     let dir = tempfile::tempdir().unwrap();
     let scene = dir.path().join("scene");
-    one_sided_torus(&scene);
+    one_sided(&scene, SampleObject::Torus);
     let s = scantex::scene::Scene::load(&SceneSpec {
         dir: Some(scene),
         ..Default::default()
