@@ -135,6 +135,16 @@ impl DepthMap {
         let mut rows = vec![f32::INFINITY; w * h];
         rows.par_chunks_mut(w).enumerate().for_each(|(y, out)| {
             let src = &self.z[y * w..(y + 1) * w];
+            if r == 1 && w >= 3 {
+                // The merge's radius: three taps without a slice per pixel (a third of the
+                // time at 2048).
+                out[0] = src[0].min(src[1]);
+                for (o, t) in out[1..w - 1].iter_mut().zip(src.windows(3)) {
+                    *o = t[0].min(t[1]).min(t[2]);
+                }
+                out[w - 1] = src[w - 2].min(src[w - 1]);
+                return;
+            }
             for (x, o) in out.iter_mut().enumerate() {
                 *o = src[x.saturating_sub(r)..=(x + r).min(w - 1)]
                     .iter()
@@ -314,21 +324,54 @@ mod tests {
         assert!(d.at(&Point2::new(150.5, 50.5)).is_infinite());
         assert!(d.near_outline(&Point2::new(111.5, 50.5), 2));
         assert!(!d.near_outline(&Point2::new(100.5, 50.5), 2));
-        // The eroded map is the minimum over each 5x5 window, everywhere (brute force).
-        let e = d.eroded(2);
-        assert_eq!(e.at(&Point2::new(101.5, 50.5)), 2.0);
-        for y in 0..100i64 {
-            for x in 0..200i64 {
+        // The eroded map is the minimum over each 5x5 window, everywhere.
+        assert_eq!(d.eroded(2).at(&Point2::new(101.5, 50.5)), 2.0);
+        assert_window_minimum(&d, 2);
+        assert!((focal_px(&view) - 50.0).abs() < 1e-6);
+    }
+
+    /// `d.eroded(r)` against the minimum over each (2r+1)^2 window, brute force.
+    fn assert_window_minimum(d: &DepthMap, r: u32) {
+        let e = d.eroded(r);
+        let (w, h, r) = (d.width as i64, d.height as i64, r as i64);
+        for y in 0..h {
+            for x in 0..w {
                 let mut m = f32::INFINITY;
-                for yy in (y - 2).max(0)..=(y + 2).min(99) {
-                    for xx in (x - 2).max(0)..=(x + 2).min(199) {
-                        m = m.min(d.z[(yy * 200 + xx) as usize]);
+                for yy in (y - r).max(0)..=(y + r).min(h - 1) {
+                    for xx in (x - r).max(0)..=(x + r).min(w - 1) {
+                        m = m.min(d.z[(yy * w + xx) as usize]);
                     }
                 }
-                let p = Point2::new(x as f64 + 0.5, y as f64 + 0.5);
-                assert_eq!(e.at(&p), m, "at {x},{y}");
+                assert_eq!(e.z[(y * w + x) as usize], m, "radius {r} at {x},{y}");
             }
         }
-        assert!((focal_px(&view) - 50.0).abs() < 1e-6);
+    }
+
+    /// Erosion is the window minimum at every pixel, borders included, for the merge's
+    /// radius 1 (a path of its own) and others, on maps with random depths and holes.
+    #[test]
+    fn erosion_is_the_window_minimum_at_every_pixel() {
+        let mut rng = crate::rng::SplitMix64::new(3);
+        for (w, h) in [(1, 1), (2, 5), (3, 3), (17, 9)] {
+            let z = (0..w * h)
+                .map(|_| {
+                    let v = rng.range(1.0, 9.0) as f32;
+                    if v > 8.0 {
+                        f32::INFINITY
+                    } else {
+                        v
+                    }
+                })
+                .collect();
+            let d = DepthMap {
+                width: w as u32,
+                height: h as u32,
+                scale: 1.0,
+                z,
+            };
+            for r in 0..=3 {
+                assert_window_minimum(&d, r);
+            }
+        }
     }
 }
