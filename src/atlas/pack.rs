@@ -220,7 +220,7 @@ fn footprint(
                     *t |= meets(x, y);
                 }
             };
-            if x1 - x0 < 4 || area == 0.0 {
+            if x1.saturating_sub(x0) < 4 || area == 0.0 {
                 each(row);
                 continue;
             }
