@@ -202,8 +202,8 @@ fn footprint(
             (b.x.floor() as usize).min(w - 1),
             (b.y.floor() as usize).min(h - 1),
         );
-        // A triangle inside one texel meets that texel's square and no other: at the density
-        // search's coarse pages most triangles are (about two per texel on the 1.5M-face scene).
+        // A triangle inside one texel meets that texel's square and no other: marked without
+        // the edge tests.
         if x0 == x1 && y0 == y1 {
             foot[y0 * w + x0] = true;
             continue;
