@@ -156,6 +156,27 @@ pub struct RegionReport {
     pub patches: usize,
 }
 
+/// The low band's start and end averaged over the regions' corner groups (linear colour, 0
+/// where there are none): those fixed to their rim's texels, and the inner ones the harmonic
+/// correction solves for. An inner mean far from the rim's says how much of the regions'
+/// colour comes from the band's start (the vertex-colour fill and the shape prior) rather
+/// than from their rims (docs/decisions.md, "The band's interior against its rim").
+#[derive(Debug, Clone, Copy, Default, Serialize, PartialEq)]
+pub struct BandSummary {
+    /// Corner groups fixed to the colour of their rim.
+    pub rim_groups: usize,
+    /// Their mean start, before they were fixed.
+    pub rim_start: [f32; 3],
+    /// Their mean fixed colour.
+    pub rim_fixed: [f32; 3],
+    /// Corner groups inside the regions (solved for).
+    pub inner_groups: usize,
+    /// Their mean start.
+    pub inner_start: [f32; 3],
+    /// Their mean value after the correction.
+    pub inner_end: [f32; 3],
+}
+
 /// What stage 6 did.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct SynthReport {
@@ -171,6 +192,8 @@ pub struct SynthReport {
     pub radius: f64,
     /// The direction taken as up (the photographs' mean up), scene frame.
     pub up: [f64; 3],
+    /// The low band at the regions' rims and inside them.
+    pub low_band: BandSummary,
     /// Seconds: low band, exemplars, patches, baking, in all.
     pub seconds_low_band: f64,
     /// See `seconds_low_band`.
@@ -387,6 +410,7 @@ pub fn synthesize(
         prior.as_ref(),
     );
     drop(prior);
+    report.low_band = low.summary;
     report.seconds_low_band = t.elapsed().as_secs_f64();
     t = Instant::now();
     // Exemplars: the user's, or per region the surface square most like its rim.

@@ -8,6 +8,7 @@
 
 use super::plane::{blend, bump, bump_squared, choose_offset, Exemplar};
 use super::prior::ShapePrior;
+use super::BandSummary;
 use crate::atlas::Atlas;
 use crate::mesh::topology::NO_FACE;
 use crate::mesh::{FaceId, Mesh};
@@ -103,6 +104,8 @@ pub(super) struct LowBand<'a> {
     corners: Vec<[[f32; 3]; 3]>,
     /// Per such face: bit k set when corner k was fixed to the rim's colour.
     fixed: Vec<u8>,
+    /// The band at the rims and inside the regions, averaged.
+    pub(super) summary: BandSummary,
 }
 
 impl LowBand<'_> {
@@ -307,6 +310,7 @@ pub(super) fn low_band<'a>(
         }
         solve_correction(&nbr, &unknown, &vars, &init_g, &mut out);
     }
+    let summary = band_summary(&group_in_region, &fixed, &init_g, &out);
     let corners: Vec<[[f32; 3]; 3]> = (0..involved.len())
         .map(|i| std::array::from_fn(|k| out[group[3 * i + k] as usize]))
         .collect();
@@ -322,6 +326,39 @@ pub(super) fn low_band<'a>(
         face,
         corners,
         fixed: fixed_bits,
+        summary,
+    }
+}
+
+/// [`BandSummary`] of the groups in a region (`in_region`), fixed or not (`fixed`), from
+/// their `start` and `end` values.
+fn band_summary(
+    in_region: &[bool],
+    fixed: &[bool],
+    start: &[[f32; 3]],
+    end: &[[f32; 3]],
+) -> BandSummary {
+    // Sums over (rim, inner) x (start, end), in group order.
+    let mut sums = [[[0f64; 3]; 2]; 2];
+    let mut counts = [0usize; 2];
+    for g in (0..in_region.len()).filter(|&g| in_region[g]) {
+        let side = usize::from(!fixed[g]);
+        counts[side] += 1;
+        for c in 0..3 {
+            sums[side][0][c] += start[g][c] as f64;
+            sums[side][1][c] += end[g][c] as f64;
+        }
+    }
+    let mean = |side: usize, which: usize| -> [f32; 3] {
+        std::array::from_fn(|c| (sums[side][which][c] / counts[side].max(1) as f64) as f32)
+    };
+    BandSummary {
+        rim_groups: counts[0],
+        rim_start: mean(0, 0),
+        rim_fixed: mean(0, 1),
+        inner_groups: counts[1],
+        inner_start: mean(1, 0),
+        inner_end: mean(1, 1),
     }
 }
 
@@ -890,6 +927,48 @@ mod tests {
                 None => TexelSource::Empty as u8,
             })
             .collect()
+    }
+
+    /// A flat 10 x 10 grid whose middle 6 x 6 squares are the region, the rest photographed
+    /// in one colour, the band starting grey everywhere: the summary finds the rim's groups
+    /// fixed to that colour and the harmonic correction carrying it to the inner groups.
+    #[test]
+    fn the_summary_follows_the_band_from_rim_to_centre() {
+        let m = 10u32;
+        let mut mesh = Mesh::default();
+        for y in 0..=m {
+            for x in 0..=m {
+                mesh.positions
+                    .push(Point3::new(x as f64 * 0.1, y as f64 * 0.1, 0.0));
+            }
+        }
+        let id = |x: u32, y: u32| VertexId(y * (m + 1) + x);
+        for y in 0..m {
+            for x in 0..m {
+                mesh.faces.push([id(x, y), id(x + 1, y), id(x + 1, y + 1)]);
+                mesh.faces.push([id(x, y), id(x + 1, y + 1), id(x, y + 1)]);
+            }
+        }
+        let (mesh, atlas, _) = build(mesh, &page_256()).unwrap();
+        let member: Vec<bool> = (0..mesh.num_faces())
+            .map(|f| {
+                let c = centroid(&mesh, f as u32);
+                (0.2..0.8).contains(&c.x) && (0.2..0.8).contains(&c.y)
+            })
+            .collect();
+        let n = atlas.size;
+        let color = image::Rgb32FImage::from_pixel(n, n, image::Rgb([0.8; 3]));
+        let adj = crate::mesh::topology::face_adjacency(&mesh);
+        let init = vec![[0.5f32; 3]; mesh.num_vertices()];
+        let source = sources(&atlas, &member);
+        let s = low_band(&mesh, &atlas, &color, &source, &member, &adj, &init, None).summary;
+        // The region's 7 x 7 vertices: its boundary's 24 on the rim, 25 inside.
+        assert_eq!((s.rim_groups, s.inner_groups), (24, 25));
+        assert_eq!((s.rim_start, s.rim_fixed), ([0.5; 3], [0.8; 3]));
+        assert_eq!(s.inner_start, [0.5; 3]);
+        for c in s.inner_end {
+            assert!((c - 0.8).abs() < 0.01, "{:?}", s.inner_end);
+        }
     }
 
     /// The region as below, folded at 20 degrees, every rim face white but for thin black
