@@ -58,7 +58,7 @@ def main():
     spans.append(("load", 0.0, start))
     t = start
     if side:
-        spans.append(("atlas | bind", t, t + max(side)))
+        spans.append(("atlas beside bind", t, t + max(side)))
         t += max(side)
     for s in stages:
         if s["stage"] in ("atlas", "bind"):
