@@ -11,7 +11,7 @@ use crate::error::{Error, Result};
 use crate::io::{self, EncodedTexture, Staged};
 use crate::memory::{self, Estimate, MemoryLimit};
 use crate::merge::{self, Masks, MergeOptions};
-use crate::mesh::Mesh;
+use crate::mesh::{order::MeshOrder, Mesh};
 use crate::photometric::{self, GainModel, Gains, PhotometricOptions};
 use crate::progress::Progress;
 use crate::resample::{ResampleOptions, ResampleStats, Resampled};
@@ -576,6 +576,13 @@ pub fn texture_with(
         welded.uv = None;
     }
     welded.weld();
+    // A mesh whose faces come in no spatial order is worked on in one (5% of the 1.5M-face
+    // speed scene's time, docs/decisions.md) and handed back in its own order: the pages'
+    // per-face and per-vertex products, the mesh each page sink gets and the result's.
+    let order = welded.scattered_order();
+    if let Some(o) = &order {
+        welded = welded.reordered(o);
+    }
     let normals = welded.vertex_normals();
     // The memory limit first: it may lower the page side that `--size auto` can choose.
     let limit = opts.memory_limit.bytes();
@@ -753,9 +760,18 @@ pub fn texture_with(
             tile: page_tile(count, p),
         };
         let atlas = pages.atlas(&m, p)?;
-        let (page, report) = texture_page(&ctx, &atlas, 1001 + p, &mut log)?;
+        let (mut page, mut report) = texture_page(&ctx, &atlas, 1001 + p, &mut log)?;
         drop(atlas);
-        done.extend(on_page(&m, count, page)?);
+        let in_order;
+        let sink_mesh = match &order {
+            Some(o) => {
+                to_original_order(&mut page, &mut report, o);
+                in_order = m.in_original_order(o);
+                &in_order
+            }
+            None => &m,
+        };
+        done.extend(on_page(sink_mesh, count, page)?);
         log.end("output", page_tile(count, p));
         page_reports.push(report);
     }
@@ -801,10 +817,49 @@ pub fn texture_with(
         peak_mb,
     };
     Ok(Textured {
-        mesh: m,
+        mesh: match &order {
+            Some(o) => m.in_original_order(o),
+            None => m,
+        },
         pages: done,
         report,
     })
+}
+
+/// A page's products indexed by the faces and vertices of the mesh as the pipeline sorted it
+/// ([`crate::mesh::order`]), indexed by the input's instead.
+fn to_original_order(page: &mut TexturedPage, report: &mut PageReport, o: &MeshOrder) {
+    let res = &mut page.resampled;
+    res.classes = o.faces_to_original(&res.classes);
+    res.vertex_colors = o.vertices_to_original(&res.vertex_colors);
+    let face = |f: u32| {
+        if f == crate::mesh::topology::NO_FACE {
+            f
+        } else {
+            o.original_face(f)
+        }
+    };
+    if let Some(left) = &mut page.unrestored {
+        for r in &mut left.regions {
+            for f in &mut r.faces {
+                *f = face(*f);
+            }
+        }
+        if !left.adjacency.is_empty() {
+            left.adjacency = o
+                .faces_to_original(&left.adjacency)
+                .into_iter()
+                .map(|a| a.map(face))
+                .collect();
+        }
+    }
+    if let Some(synth) = &mut report.synth {
+        for r in &mut synth.regions {
+            if let synth::ExemplarUsed::Surface { face: f, .. } = &mut r.exemplar {
+                *f = face(*f);
+            }
+        }
+    }
 }
 
 /// What every page's stages read: the whole mesh (its UVs with this page at `[0, 1]`), its

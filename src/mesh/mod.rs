@@ -6,6 +6,7 @@ use serde::Serialize;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
+pub mod order;
 pub mod topology;
 pub use topology::UnionFind;
 

@@ -75,6 +75,36 @@ pub fn texture_into(
     r
 }
 
+/// `mesh`'s positions and faces (nothing else) with its faces and vertices in the order of two
+/// permutations drawn from `seed` (new index -> old), and the permutations.
+pub fn shuffled(
+    mesh: &scantex::mesh::Mesh,
+    seed: u64,
+) -> (scantex::mesh::Mesh, Vec<usize>, Vec<usize>) {
+    let mut rng = scantex::rng::SplitMix64::new(seed);
+    let mut perm = |len: usize| {
+        let mut p: Vec<usize> = (0..len).collect();
+        for i in (1..len).rev() {
+            p.swap(i, (rng.next_u64() % (i as u64 + 1)) as usize);
+        }
+        p
+    };
+    let (pv, pf) = (perm(mesh.num_vertices()), perm(mesh.num_faces()));
+    let mut at = vec![0u32; pv.len()];
+    for (new, &old) in pv.iter().enumerate() {
+        at[old] = new as u32;
+    }
+    let out = scantex::mesh::Mesh {
+        positions: pv.iter().map(|&v| mesh.positions[v]).collect(),
+        faces: pf
+            .iter()
+            .map(|&f| mesh.faces[f].map(|v| scantex::mesh::VertexId(at[v.idx()])))
+            .collect(),
+        ..Default::default()
+    };
+    (out, pv, pf)
+}
+
 /// The largest distance, in pixels, between where two camera models of the same photographs
 /// (paired in image-id order, same names and sizes) put the sample's mesh vertices (every 97th,
 /// where the second model sees them), and how many projections were compared.

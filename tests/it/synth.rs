@@ -183,6 +183,67 @@ fn stage_six_gives_the_same_bytes_on_one_thread() {
     assert!(reseeded.page().resampled.color != many.page().resampled.color);
 }
 
+/// A one-sided scene whose mesh comes in a scattered order (sorted inside the pipeline, see
+/// `mesh::order`): what stage 6 and restoration hand out names the input's faces. Each
+/// surface exemplar's face lies at the centre the report gives, and the unseen regions'
+/// adjacency joins faces that share an edge of the input mesh.
+#[test]
+fn stage_six_names_the_faces_of_a_scattered_mesh_in_its_order() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    one_sided(&scene, SampleObject::Torus);
+    let s = scantex::scene::Scene::load(&SceneSpec {
+        dir: Some(scene.clone()),
+        ..Default::default()
+    })
+    .unwrap();
+    let (mesh, _) = s.mesh.as_ref().unwrap();
+    let (scattered, _, _) = common::shuffled(mesh, 5);
+    assert!(scattered.scattered_order().is_some());
+    let opts = TextureOptions {
+        size: AtlasSize::Fixed(512),
+        ..Default::default()
+    };
+    let r = scantex::pipeline::texture(&scattered, &s.photos, &opts, &scantex::progress::Silent)
+        .unwrap();
+    let m = &r.mesh;
+    let synth = r.report.pages[0].synth.as_ref().expect("stage 6 ran");
+    let mut surface = 0;
+    for region in &synth.regions {
+        if let scantex::synth::ExemplarUsed::Surface { face, centre, .. } = &region.exemplar {
+            let t = m.triangle(scantex::mesh::FaceId(*face));
+            let c = (t[0].coords + t[1].coords + t[2].coords) / 3.0;
+            let d = (c - nalgebra::Vector3::from(*centre)).norm();
+            assert!(d < 1e-9, "exemplar face {face} lies {d} from its centre");
+            surface += 1;
+        }
+    }
+    assert!(
+        surface > 0,
+        "no exemplar from the surface: {:?}",
+        synth.regions
+    );
+    let left = r.page().unrestored.as_ref().expect("restoration ran");
+    assert_eq!(left.adjacency.len(), m.num_faces());
+    let mut checked = 0;
+    for region in &left.regions {
+        for &f in &region.faces {
+            for &g in &left.adjacency[f as usize] {
+                if g == u32::MAX {
+                    continue;
+                }
+                let shared = m.faces[f as usize]
+                    .iter()
+                    .filter(|v| m.faces[g as usize].contains(v))
+                    .count();
+                assert_eq!(shared, 2, "faces {f} and {g} listed as neighbours");
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked > 100, "{checked} neighbours checked");
+}
+
 /// What the stages of a run reported: (stage, total, steps advanced), in the order they
 /// began, from the run's reporter and those beside it.
 #[derive(Clone, Default)]

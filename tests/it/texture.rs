@@ -850,3 +850,77 @@ fn keep_uvs_refuses_what_it_cannot_keep_and_warns_on_overlaps() {
     let e = e.to_string();
     assert!(e.contains("face 0") && e.contains("outside [0, 1]"), "{e}");
 }
+
+/// A mesh whose faces and vertices come in no spatial order is worked on in one and handed
+/// back in its own (`mesh::order`): the textured mesh lists the input's triangles in the
+/// input's order, the per-face and per-vertex products line up with it (the triangle classes
+/// and vertex colours of the same faces and vertices textured in their own order), and the
+/// held-out views score as well.
+#[test]
+fn a_scattered_mesh_comes_back_in_its_order_and_textured_as_well() {
+    let s = torus();
+    let (mesh, _) = s.mesh.as_ref().unwrap();
+    assert!(
+        mesh.scattered_order().is_none(),
+        "the sample is written in order"
+    );
+    let (scattered, pv, pf) = common::shuffled(mesh, 3);
+    assert!(scattered.scattered_order().is_some());
+    let opts = sized(1024);
+    let ordered = texture(mesh, &s.photos, &opts, &Silent).unwrap();
+    let r = texture(&scattered, &s.photos, &opts, &Silent).unwrap();
+    assert_eq!(r.mesh.num_faces(), scattered.num_faces());
+    for f in 0..scattered.num_faces() {
+        let id = scantex::mesh::FaceId(f as u32);
+        assert_eq!(r.mesh.triangle(id), scattered.triangle(id), "face {f}");
+    }
+    assert_eq!(r.mesh.positions, scattered.positions);
+    let res = &r.page().resampled;
+    let base = &ordered.page().resampled;
+    let same_class = pf
+        .iter()
+        .enumerate()
+        .filter(|&(f, &old)| res.classes[f] == base.classes[old])
+        .count();
+    assert!(
+        same_class as f64 > 0.999 * pf.len() as f64,
+        "{same_class} of {} faces keep their class",
+        pf.len()
+    );
+    let close = pv
+        .iter()
+        .enumerate()
+        .filter(|&(v, &old)| {
+            (0..3).all(|k| (res.vertex_colors[v][k] - base.vertex_colors[old][k]).abs() < 0.02)
+        })
+        .count();
+    assert!(
+        close as f64 > 0.99 * pv.len() as f64,
+        "{close} of {} vertex colours agree",
+        pv.len()
+    );
+    // Held out: the sample's own views, textured both ways.
+    let dir = tempfile::tempdir().unwrap();
+    let score = |t: &scantex::pipeline::Textured, name: &str| {
+        let out = dir.path().join(name);
+        write_outputs(&out, t, TextureFormat::Png, None).unwrap();
+        scantex::eval::evaluate_scene(
+            &out.join("model.obj"),
+            &SceneSpec {
+                dir: Some(common::root().join("samples/torus/heldout")),
+                ..Default::default()
+            },
+            &scantex::eval::EvalOptions { gain_fit: true },
+        )
+        .unwrap()
+        .mean
+        .unwrap()
+    };
+    let (a, b) = (score(&ordered, "ordered"), score(&r, "scattered"));
+    assert!(
+        (a.psnr - b.psnr).abs() < 0.3,
+        "held-out PSNR {:.2} in order, {:.2} scattered",
+        a.psnr,
+        b.psnr
+    );
+}
