@@ -12,17 +12,17 @@ use rayon::prelude::*;
 
 /// A mesh is scattered when the lowest vertex index of one face and of the next differ by
 /// more than this, at the median over consecutive faces. Meshers write neighbouring faces
-/// one after the other (a median of 1 on the corset, the torus and floor_patch); the speed
-/// scene's faces jump by 139,402 of 768,080 vertices.
+/// one after the other (a median of 1 on the corset and the sample torus, 6 on floor_patch's
+/// COLMAP mesh); the speed scene's faces jump by 139,402 of 768,080 vertices.
 pub const SCATTERED_JUMP: u32 = 1024;
 
 /// A permutation of a mesh's faces and vertices.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MeshOrder {
     /// Face `i` of the sorted mesh is face `faces[i]` of the original.
-    pub faces: Vec<u32>,
+    faces: Vec<u32>,
     /// Vertex `i` of the sorted mesh is vertex `vertices[i]` of the original.
-    pub vertices: Vec<u32>,
+    vertices: Vec<u32>,
     /// Original face `f` is face `face_at[f]` of the sorted mesh.
     face_at: Vec<u32>,
     /// Original vertex `v` is vertex `vertex_at[v]` of the sorted mesh.
