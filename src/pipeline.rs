@@ -891,6 +891,10 @@ fn texture_page(
     // levelling the merged atlas as well cost 2.4 s on a 1.5M-face scene and changed no
     // held-out score (docs/decisions.md, "Chart borders levelled once").
     let restoring = !matches!(opts.restoration, Restoration::Off);
+    // Stage 6 runs when restoration left regions to it.
+    let synth_follows = |left: &restore::Unrestored| {
+        opts.synth.exemplar != ExemplarSource::Off && !left.regions.is_empty()
+    };
     let merge_opts = merge::MergeOptions {
         level_seams: opts.merge.level_seams && !restoring,
         ..opts.merge
@@ -910,28 +914,27 @@ fn texture_page(
     let (restore, unrestored) = match opts.restoration {
         Restoration::Off => (None, None),
         Restoration::Synthesis { options, handing } => {
-            let (r, left) = restore::restore_atlas(
-                &mut resampled,
-                m,
-                atlas,
-                &options,
-                &handing,
-                opts.resample.gutter_fill,
-                progress,
-            )?;
+            // The gutter is filled again once, after the last step that changes chart
+            // colours (a fill of an 8192 atlas takes about half a second, and no step reads
+            // the gutter's colours): width 0 leaves it as the merge left it.
+            let (r, left) =
+                restore::restore_atlas(&mut resampled, m, atlas, &options, &handing, 0, progress)?;
             // Restored texels meet at chart borders without having seen each other, and the
             // merge left the borders to this one levelling.
             if opts.merge.merge == merge::Merge::Multiband && opts.merge.level_seams {
-                let st = merge::relevel(m, atlas, &mut resampled, opts.resample.gutter_fill)?;
+                let st = merge::relevel(m, atlas, &mut resampled, 0)?;
                 merging.seam_levelling_after_restore = Some(st);
+            }
+            if !synth_follows(&left) {
+                crate::resample::refill_gutter(&mut resampled, opts.resample.gutter_fill);
             }
             progress.finish();
             stage("restore");
             (Some(r), Some(left))
         }
     };
-    let synth = match (&unrestored, &opts.synth.exemplar) {
-        (Some(left), e) if *e != ExemplarSource::Off && !left.regions.is_empty() => {
+    let synth = match &unrestored {
+        Some(left) if synth_follows(left) => {
             let r = synth::synthesize(
                 m,
                 ctx.normals,

@@ -634,7 +634,7 @@ fn blended_rows(
 /// Levels chart borders again, on `res`'s current colours: restoration fills texels on both
 /// sides of chart borders independently, and the steps it leaves there are what levelling
 /// removes (`docs/decisions.md`). `mesh` and `atlas` are the ones `res` was merged for; the
-/// gutter is filled again, `gutter_fill` texels deep.
+/// gutter is filled again, `gutter_fill` texels deep (0 leaves it for the caller to refill).
 pub fn relevel(
     mesh: &Mesh,
     atlas: &Atlas,

@@ -77,8 +77,9 @@ impl Default for Handing {
 
 /// Stage 5 on the atlas: fills the texels the merge marked as seen by no photograph (green
 /// fallback, blue and red triangles), reading chart texels only, then extends the charts into
-/// the gutter again so that filtering never pulls in the old fill. Regions beyond restoration
-/// (`handing`) are left untouched and handed on. Returns what it did and the unseen texels it
+/// the gutter again (`gutter_fill` texels deep; 0 leaves it for the caller to refill) so that
+/// filtering never pulls in the old fill. Regions beyond restoration (`handing`) are left
+/// untouched and handed on. Returns what it did and the unseen texels it
 /// left, with their regions.
 pub fn restore_atlas(
     res: &mut crate::resample::Resampled,
