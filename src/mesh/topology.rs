@@ -2,6 +2,7 @@
 //! vertex one-rings.
 
 use super::Mesh;
+use rayon::slice::ParallelSliceMut;
 
 /// Each vertex's one-ring: the vertices it shares an edge with, sorted, without repeats.
 pub fn one_rings(mesh: &Mesh) -> Vec<Vec<u32>> {
@@ -33,7 +34,9 @@ pub fn face_adjacency(mesh: &Mesh) -> Vec<[u32; 3]> {
             edges.push((a.min(b), a.max(b), f as u32, k as u8));
         }
     }
-    edges.sort_unstable();
+    // The tuples are distinct (one per face corner), so the parallel sort's order is the
+    // serial one's whatever the thread count.
+    edges.par_sort_unstable();
     let mut adj = vec![[NO_FACE; 3]; mesh.faces.len()];
     let mut i = 0;
     while i + 1 < edges.len() {
