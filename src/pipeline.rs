@@ -915,8 +915,9 @@ fn texture_page(
         Restoration::Off => (None, None),
         Restoration::Synthesis { options, handing } => {
             // The gutter is filled again once, after the last step that changes chart
-            // colours (a fill of an 8192 atlas takes about half a second, and no step reads
-            // the gutter's colours): width 0 leaves it as the merge left it.
+            // colours (a fill of an 8192 atlas takes about half a second): width 0 leaves it
+            // as the merge filled it. Restoration's DCT split reads that fill as its crops'
+            // padding; the levelling and stage 6 read chart texels only.
             let (r, left) =
                 restore::restore_atlas(&mut resampled, m, atlas, &options, &handing, 0, progress)?;
             // Restored texels meet at chart borders without having seen each other, and the
