@@ -914,16 +914,16 @@ fn texture_page(
     let (restore, unrestored) = match opts.restoration {
         Restoration::Off => (None, None),
         Restoration::Synthesis { options, handing } => {
-            // The gutter is filled again once, after the last step that changes chart
-            // colours (a fill of an 8192 atlas takes about half a second): width 0 leaves it
-            // as the merge filled it. Restoration's DCT split reads that fill as its crops'
-            // padding; the levelling and stage 6 read chart texels only.
+            // Neither restoration nor the levelling fills the gutter again: it is filled once,
+            // after the last step that changes chart colours (a fill of an 8192 atlas takes
+            // about half a second). Restoration's DCT split reads the merge's fill as its
+            // crops' padding; the levelling and stage 6 read chart texels only.
             let (r, left) =
-                restore::restore_atlas(&mut resampled, m, atlas, &options, &handing, 0, progress)?;
+                restore::restore_atlas(&mut resampled, m, atlas, &options, &handing, progress)?;
             // Restored texels meet at chart borders without having seen each other, and the
             // merge left the borders to this one levelling.
             if opts.merge.merge == merge::Merge::Multiband && opts.merge.level_seams {
-                let st = merge::relevel(m, atlas, &mut resampled, 0)?;
+                let st = merge::relevel(m, atlas, &mut resampled)?;
                 merging.seam_levelling_after_restore = Some(st);
             }
             if !synth_follows(&left) {

@@ -634,13 +634,9 @@ fn blended_rows(
 /// Levels chart borders again, on `res`'s current colours: restoration fills texels on both
 /// sides of chart borders independently, and the steps it leaves there are what levelling
 /// removes (`docs/decisions.md`). `mesh` and `atlas` are the ones `res` was merged for; the
-/// gutter is filled again, `gutter_fill` texels deep (0 leaves it for the caller to refill).
-pub fn relevel(
-    mesh: &Mesh,
-    atlas: &Atlas,
-    res: &mut Resampled,
-    gutter_fill: u32,
-) -> Result<level::LevelStats> {
+/// gutter is left as it was (the caller fills it again after the last step that changes chart
+/// colours, [`crate::resample::refill_gutter`]).
+pub fn relevel(mesh: &Mesh, atlas: &Atlas, res: &mut Resampled) -> Result<level::LevelStats> {
     let n = res.color.width() as usize;
     if n != atlas.size as usize {
         return Err(Error::Internal(
@@ -649,9 +645,14 @@ pub fn relevel(
     }
     let own = |i: usize| atlas.owner(i);
     let color: &mut [f32] = &mut res.color;
-    let st = level::level_seams(mesh, n, &own, &atlas.face_chart, color, level::SMOOTHNESS);
-    crate::resample::refill_gutter(res, gutter_fill);
-    Ok(st)
+    Ok(level::level_seams(
+        mesh,
+        n,
+        &own,
+        &atlas.face_chart,
+        color,
+        level::SMOOTHNESS,
+    ))
 }
 
 #[cfg(test)]

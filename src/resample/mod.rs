@@ -355,13 +355,8 @@ pub fn resample_with(
 }
 
 /// Fills `res`'s gutter again from its current chart colours (after a stage changed them),
-/// `width` texels deep. Width 0 leaves the gutter as it is, for a caller that refills it
-/// after a later stage: which texels are gutter does not change after the merge, only their
-/// colours.
+/// `width` texels deep.
 pub fn refill_gutter(res: &mut Resampled, width: u32) {
-    if width == 0 {
-        return;
-    }
     let n = res.color.width() as usize;
     for s in res.source.iter_mut() {
         if *s == TexelSource::Gutter as u8 {

@@ -76,18 +76,17 @@ impl Default for Handing {
 }
 
 /// Stage 5 on the atlas: fills the texels the merge marked as seen by no photograph (green
-/// fallback, blue and red triangles), reading chart texels only, then extends the charts into
-/// the gutter again (`gutter_fill` texels deep; 0 leaves it for the caller to refill) so that
-/// filtering never pulls in the old fill. Regions beyond restoration (`handing`) are left
-/// untouched and handed on. Returns what it did and the unseen texels it
-/// left, with their regions.
+/// fallback, blue and red triangles), reading chart texels only. The gutter keeps the merge's
+/// fill (the DCT split reads it as its crops' padding) and the old colours: the caller fills
+/// it again ([`crate::resample::refill_gutter`]) after the last step that changes chart
+/// colours. Regions beyond restoration (`handing`) are left untouched and handed on. Returns
+/// what it did and the unseen texels it left, with their regions.
 pub fn restore_atlas(
     res: &mut crate::resample::Resampled,
     mesh: &crate::mesh::Mesh,
     atlas: &crate::atlas::Atlas,
     opts: &RestoreOptions,
     handing: &Handing,
-    gutter_fill: u32,
     progress: &dyn crate::progress::Progress,
 ) -> Result<(RestoreReport, Unrestored)> {
     use crate::resample::TexelSource as S;
@@ -333,7 +332,6 @@ pub fn restore_atlas(
         left.adjacency = adj;
     }
     res.color = image::Rgb32FImage::from_raw(n as u32, n as u32, data).expect("n * n * 3 values");
-    crate::resample::refill_gutter(res, gutter_fill);
     Ok((report, left))
 }
 
