@@ -63,18 +63,9 @@ pub struct Adjacency {
 impl Adjacency {
     /// Builds the adjacency of `mesh`.
     pub fn new(mesh: &Mesh) -> Self {
-        // Each face corner's edge as (low vertex, high vertex, face, corner), sorted: an
-        // edge's corners lie side by side, so one sweep pairs them (binary searches for each
-        // half-edge and its twin took twice as long on 1.5M faces).
-        let mut edges: Vec<(u32, u32, u32, u8)> = Vec::with_capacity(mesh.num_faces() * 3);
-        for (f, face) in mesh.faces.iter().enumerate() {
-            for k in 0..3 {
-                let (a, b) = (face[k].0, face[(k + 1) % 3].0);
-                edges.push((a.min(b), a.max(b), f as u32, k as u8));
-            }
-        }
-        // The tuples are distinct (one per face corner), so any sort gives the same order.
-        edges.par_sort_unstable();
+        // An edge's corners lie side by side in the sorted edges, so one sweep pairs them
+        // (binary searches for each half-edge and its twin took twice as long on 1.5M faces).
+        let edges = crate::mesh::topology::sorted_edges(mesh);
         let mut neighbours = vec![[None; 3]; mesh.num_faces()];
         let forward = |f: u32, k: u8| {
             let face = &mesh.faces[f as usize];

@@ -24,9 +24,9 @@ pub fn one_rings(mesh: &Mesh) -> Vec<Vec<u32>> {
 /// No neighbour across this edge (a boundary, or a third face on a non-manifold edge).
 pub const NO_FACE: u32 = u32::MAX;
 
-/// Each face's neighbours across its three edges (edge k joins corners k and k + 1), or
-/// [`NO_FACE`]. On a non-manifold edge the faces pair up in index order.
-pub fn face_adjacency(mesh: &Mesh) -> Vec<[u32; 3]> {
+/// Every face's edges (edge k joins corners k and k + 1) as (lower vertex, higher vertex,
+/// face, k), sorted: the corners that share an edge lie side by side.
+pub fn sorted_edges(mesh: &Mesh) -> Vec<(u32, u32, u32, u8)> {
     let mut edges: Vec<(u32, u32, u32, u8)> = Vec::with_capacity(mesh.faces.len() * 3);
     for (f, fv) in mesh.faces.iter().enumerate() {
         for k in 0..3 {
@@ -37,6 +37,13 @@ pub fn face_adjacency(mesh: &Mesh) -> Vec<[u32; 3]> {
     // The tuples are distinct (one per face corner), so the parallel sort's order is the
     // serial one's whatever the thread count.
     edges.par_sort_unstable();
+    edges
+}
+
+/// Each face's neighbours across its three edges (edge k joins corners k and k + 1), or
+/// [`NO_FACE`]. On a non-manifold edge the faces pair up in index order.
+pub fn face_adjacency(mesh: &Mesh) -> Vec<[u32; 3]> {
+    let edges = sorted_edges(mesh);
     let mut adj = vec![[NO_FACE; 3]; mesh.faces.len()];
     let mut i = 0;
     while i + 1 < edges.len() {
