@@ -1,14 +1,15 @@
 #!/usr/bin/env python3
 """Two scantex builds on one scene at the same time, one thread each (issue 23).
 
-    python3 benches/paired.py SCENE BIN_A BIN_B [--rounds N] [--args "..."]
+    python3 benches/paired.py SCENE BIN_A BIN_B [--rounds N] [--args "..."] [--args-b "..."]
 
 This machine's speed drifts by 20-40% from one hour to the next, more than most changes are
 worth, so runs made one after the other compare hours as much as builds. Here both builds run
 side by side, each on one core (`--threads 1`), so whatever the machine does to one it does to
 the other; each round prints, per build, wall and CPU seconds, peak memory, the stages'
 seconds from `report.json` and the merge's sampling CPU seconds, and whether `model.png` came
-out the same bytes. With BIN_A the same binary as BIN_B it measures the method's own spread.
+out the same bytes. With BIN_A the same binary as BIN_B it measures the method's own spread,
+or with `--args-b` what an option costs.
 One thread per build measures the work, not how it spreads over cores: a change to
 parallelism needs runs with every core.
 """
@@ -27,8 +28,9 @@ def main():
     ap.add_argument("b")
     ap.add_argument("--rounds", type=int, default=1)
     ap.add_argument("--args", default="", help="extra arguments for both runs of `scantex texture`")
+    ap.add_argument("--args-b", default="", help="extra arguments for build B's runs only")
     opts = ap.parse_args()
-    extra = shlex.split(opts.args)
+    extra = {"A": shlex.split(opts.args), "B": shlex.split(opts.args) + shlex.split(opts.args_b)}
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(opts.rounds):
             procs = []
@@ -36,7 +38,7 @@ def main():
                 out = os.path.join(tmp, f"{name}{r}")
                 timing = os.path.join(tmp, f"{name}{r}.time")
                 cmd = ["/usr/bin/time", "-f", "%e %U %S %M", "-o", timing, binary, "texture",
-                       opts.scene, "-o", out, "--threads", "1", "-q"] + extra
+                       opts.scene, "-o", out, "--threads", "1", "-q"] + extra[name]
                 procs.append((name, out, timing, subprocess.Popen(cmd, stdout=subprocess.DEVNULL,
                                                                   stderr=subprocess.PIPE)))
             rows = []
