@@ -12,8 +12,9 @@ use rayon::prelude::*;
 const A: f32 = 0.073235;
 const B: f32 = 0.176765;
 
-/// Fills the pixels of `fill` (within `domain`) of an interleaved image with `ch` channels.
-/// `sweeps` Jacobi sweeps run at every level of the cascade.
+/// Fills the pixels of `fill` (within `domain`) of an interleaved image with `ch` channels
+/// (1 or 3: restoration's images are grey or RGB, checked by [`super::inpaint`]). `sweeps`
+/// Jacobi sweeps run at every level of the cascade.
 pub(crate) fn inpaint(
     data: &mut [f32],
     w: usize,
