@@ -108,6 +108,19 @@ impl Staged {
             .take_while(|a| !a.as_os_str().is_empty() && !a.exists())
             .map(Path::to_path_buf)
             .collect();
+        // create_dir_all's own error for a file in the way ("File exists") does not say
+        // which part is wrong.
+        if let Some(f) = dest.ancestors().find(|a| a.exists() && !a.is_dir()) {
+            let what = if f == dest {
+                "is a file, not a directory: the output must be a directory"
+            } else {
+                "is a file, not a directory: it cannot hold the output directory"
+            };
+            return Err(Error::io(
+                f,
+                std::io::Error::new(std::io::ErrorKind::AlreadyExists, what),
+            ));
+        }
         std::fs::create_dir_all(dest).map_err(|e| Error::io(dest, e))?;
         let live = Live {
             tmp: dest.join(staging_name(&self.label)),

@@ -1149,6 +1149,25 @@ fn mesh_outputs_of_an_unknown_kind() {
     );
 }
 
+#[test]
+fn an_output_path_that_is_a_file_is_named() {
+    let d = setup();
+    std::fs::write(d.path().join("taken"), b"a file").unwrap();
+    names(
+        &fails_cmd(d.path(), "texture", &[".", "-o", "taken", "-q"]),
+        &[
+            "taken",
+            "is a file, not a directory",
+            "the output must be a directory",
+        ],
+    );
+    names(
+        &fails_cmd(d.path(), "texture", &[".", "-o", "taken/out", "-q"]),
+        &["taken", "is a file", "cannot hold the output directory"],
+    );
+    assert_eq!(std::fs::read(d.path().join("taken")).unwrap(), b"a file");
+}
+
 /// Runs a command that clap must refuse: usage errors exit with 2 and name the option and its
 /// valid range.
 fn usage_fails(cmd: &str, args: &[&str], parts: &[&str]) {
