@@ -490,8 +490,8 @@ pub fn evaluate(
 ) -> Result<EvalReport> {
     let mut images = Vec::with_capacity(photos.len());
     for photo in photos {
-        let img = photo.load()?;
-        let mask = photo.load_mask()?;
+        let (img, mask) = photo.load_with_mask(Vec::new())?;
+        let img = img.into_rgb32f();
         let r = render(mesh, texture, &photo.view, &RenderOptions::default());
         let (w, h) = img.dimensions();
         let in_mask = |x: u32, y: u32| mask.as_ref().is_none_or(|m| m.get_pixel(x, y)[0] > 127);

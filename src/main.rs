@@ -584,6 +584,7 @@ struct ViewArgs {
     #[arg(long)]
     images: Option<PathBuf>,
     /// Object masks directory (white = object); overrides the scene directory's masks/.
+    /// Photographs with an alpha channel that hides some pixels are masked by it as well.
     #[arg(long)]
     masks: Option<PathBuf>,
     /// Leave out registered images whose photograph file is absent instead of failing.

@@ -15,10 +15,8 @@ struct Decoded {
 }
 
 fn decode(p: &Photo, spare: Vec<u8>) -> Result<Decoded> {
-    Ok(Decoded {
-        rgb: p.load_pixels(spare)?,
-        mask: p.load_mask()?,
-    })
+    let (rgb, mask) = p.load_with_mask(spare)?;
+    Ok(Decoded { rgb, mask })
 }
 
 /// Runs `work` on every photograph in order, decoding the next one while `work` runs on the

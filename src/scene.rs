@@ -321,7 +321,13 @@ impl Photo {
     /// Decodes the photograph as stored (8-bit files stay 8-bit, in `spare`'s memory: a
     /// previous photograph's buffer), checking its size against the camera.
     pub fn load_pixels(&self, spare: Vec<u8>) -> Result<PhotoPixels> {
-        let img = io::image::read_photo(&self.path, spare)?;
+        Ok(self.load_pixels_and_alpha(spare)?.0)
+    }
+
+    /// [`Photo::load_pixels`], and the photograph's alpha channel when it hides some pixels
+    /// ([`io::image::read_photo_and_alpha`]).
+    fn load_pixels_and_alpha(&self, spare: Vec<u8>) -> Result<(PhotoPixels, Option<GrayImage>)> {
+        let (img, alpha) = io::image::read_photo_and_alpha(&self.path, spare)?;
         let expected = (self.view.camera.width, self.view.camera.height);
         if img.dimensions() != expected {
             return Err(Error::at_element(
@@ -336,12 +342,29 @@ impl Photo {
                 ),
             ));
         }
-        Ok(img)
+        Ok((img, alpha))
     }
 
     /// Decodes the mask (white = object) if there is one, checking its size.
     pub fn load_mask(&self) -> Result<Option<GrayImage>> {
         self.load_gray(self.mask.as_deref(), "mask")
+    }
+
+    /// The photograph ([`Photo::load_pixels`]) and its object mask: the mask file's, the
+    /// alpha channel's where it hides some pixels, or where both exist the pixels both keep
+    /// (masks read 128 and above as object, so the smaller value of the two).
+    pub fn load_with_mask(&self, spare: Vec<u8>) -> Result<(PhotoPixels, Option<GrayImage>)> {
+        let (rgb, alpha) = self.load_pixels_and_alpha(spare)?;
+        let mask = match (self.load_mask()?, alpha) {
+            (Some(mut m), Some(a)) => {
+                for (v, &b) in m.iter_mut().zip(a.iter()) {
+                    *v = (*v).min(b);
+                }
+                Some(m)
+            }
+            (m, a) => m.or(a),
+        };
+        Ok((rgb, mask))
     }
 
     /// Decodes the unseen-surface mask if there is one, checking its size.

@@ -3,7 +3,7 @@
 
 use super::EncodedTexture;
 use crate::error::{Error, Location, Result};
-use image::{ColorType, DynamicImage, ImageDecoder, ImageReader, Rgb32FImage};
+use image::{ColorType, DynamicImage, GrayImage, ImageDecoder, ImageReader, Rgb32FImage};
 use std::path::Path;
 
 fn open(path: &Path) -> Result<ImageReader<std::io::BufReader<std::fs::File>>> {
@@ -255,7 +255,7 @@ impl PhotoPixels {
         }
     }
 
-    /// The 8-bit buffer, for the next photograph to decode into ([`read_photo`]).
+    /// The 8-bit buffer, for the next photograph to decode into ([`read_photo_and_alpha`]).
     pub fn into_spare(self) -> Vec<u8> {
         match self {
             PhotoPixels::Rgb8(img) => img.into_raw(),
@@ -264,17 +264,34 @@ impl PhotoPixels {
     }
 }
 
-/// Decodes a photograph, 8-bit RGB files into `spare`'s memory: a caller decoding photograph
-/// after photograph passes the last one's buffer back ([`PhotoPixels::into_spare`]), which
-/// saves the page faults of fresh memory per photograph.
-pub fn read_photo(path: &Path, spare: Vec<u8>) -> Result<PhotoPixels> {
+/// Decodes a photograph, 8-bit RGB files into `spare`'s memory (a caller decoding photograph
+/// after photograph passes the last one's buffer back, [`PhotoPixels::into_spare`], which
+/// saves the page faults of fresh memory per photograph), and its alpha channel as a mask
+/// (8-bit, opaque = object, read as masks are: 128 and above) when it has one that hides some
+/// pixel: background-removal tools write photographs whose transparent pixels still hold a
+/// colour (often black) that is not the object's. An alpha channel that is opaque everywhere
+/// is no mask.
+pub fn read_photo_and_alpha(
+    path: &Path,
+    spare: Vec<u8>,
+) -> Result<(PhotoPixels, Option<GrayImage>)> {
     check_complete(path)?;
     let mut r = open(path)?;
     r.limits(limits());
     let decoder = r.into_decoder().map_err(|e| decode_error(path, e))?;
     if decoder.color_type() != ColorType::Rgb8 {
         let img = DynamicImage::from_decoder(decoder).map_err(|e| decode_error(path, e))?;
-        return Ok(PhotoPixels::Rgb32F(img.into_rgb32f()));
+        let alpha = if img.color().has_alpha() {
+            let rgba = img.to_rgba8();
+            let (w, h) = rgba.dimensions();
+            let a: Vec<u8> = rgba.pixels().map(|p| p.0[3]).collect();
+            a.iter()
+                .any(|&v| v < 128)
+                .then(|| GrayImage::from_raw(w, h, a).expect("one byte per pixel"))
+        } else {
+            None
+        };
+        return Ok((PhotoPixels::Rgb32F(img.into_rgb32f()), alpha));
     }
     let (w, h) = decoder.dimensions();
     let n = usize::try_from(decoder.total_bytes())
@@ -285,8 +302,9 @@ pub fn read_photo(path: &Path, spare: Vec<u8>) -> Result<PhotoPixels> {
     decoder
         .read_image(&mut buf)
         .map_err(|e| decode_error(path, e))?;
-    Ok(PhotoPixels::Rgb8(
-        image::RgbImage::from_raw(w, h, buf).expect("3 bytes per pixel"),
+    Ok((
+        PhotoPixels::Rgb8(image::RgbImage::from_raw(w, h, buf).expect("3 bytes per pixel")),
+        None,
     ))
 }
 
