@@ -261,7 +261,9 @@ enum Command {
         /// and the atlas layout.
         #[arg(long)]
         debug_dir: Option<PathBuf>,
-        /// No progress bars.
+        /// No progress: neither bars (on a terminal) nor, when standard error goes to a log,
+        /// the lines long stages print there (every 30 s, and when a stage of over 5 s
+        /// ends). Warnings and errors still print.
         #[arg(short, long)]
         quiet: bool,
     },
@@ -787,7 +789,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
             let progress: Box<dyn scantex::progress::Progress> = if quiet {
                 Box::new(scantex::progress::Silent)
             } else {
-                Box::new(scantex::progress::Bars::default())
+                scantex::progress::for_stderr()
             };
             let result = scantex::pipeline::texture_scene(
                 &scene.spec(),
@@ -842,7 +844,7 @@ fn run(cli: Cli) -> scantex::Result<ExitCode> {
                 &out,
                 report.as_deref(),
                 &opts,
-                &scantex::progress::Bars::default(),
+                scantex::progress::for_stderr().as_ref(),
             )?;
             let json = serde_json::to_string_pretty(&rep).expect("report serialises");
             print_out(&format!("{json}\n"));

@@ -1,7 +1,9 @@
 //! Progress reporting for long stages. The library reports through [`Progress`]; the binary
-//! chooses [`Bars`] (indicatif bars on a terminal) or [`Silent`].
+//! chooses [`Bars`] on a terminal, [`Lines`] when standard error goes to a log (a batch job
+//! on a server), or [`Silent`] (`-q`): [`for_stderr`].
 
-use std::sync::Mutex;
+use std::io::{IsTerminal, Write};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// Receives progress of one stage at a time.
@@ -97,5 +99,178 @@ impl Progress for Bars {
             multi: self.multi.clone(),
             current: Mutex::new(None),
         })
+    }
+}
+
+/// The reporter for standard error: [`Bars`] when it is a terminal, [`Lines`] otherwise.
+pub fn for_stderr() -> Box<dyn Progress> {
+    if std::io::stderr().is_terminal() {
+        Box::new(Bars::default())
+    } else {
+        Box::new(Lines::default())
+    }
+}
+
+/// Where [`Lines`] writes.
+type Sink = Arc<Mutex<dyn Write + Send>>;
+
+/// A running stage for [`Lines`]: its name, total and count, when it started and when it last
+/// printed.
+struct Running {
+    stage: String,
+    total: u64,
+    pos: u64,
+    start: Instant,
+    printed: Instant,
+}
+
+/// Plain lines for a log: a stage still running prints where it is every [`Lines::every`],
+/// and a stage that took at least [`Lines::after`] says so when it ends. Short runs print
+/// nothing; a long one leaves a line or two per stage, never a bar's control characters.
+pub struct Lines {
+    /// A stage shorter than this prints nothing. Default: 5 s.
+    pub after: Duration,
+    /// How often a running stage prints its count. Default: 30 s.
+    pub every: Duration,
+    sink: Sink,
+    current: Mutex<Option<Running>>,
+}
+
+impl Default for Lines {
+    fn default() -> Self {
+        Lines::to(Arc::new(Mutex::new(std::io::stderr())))
+    }
+}
+
+impl Lines {
+    /// Lines written to `sink` instead of standard error, with the default intervals.
+    pub fn to(sink: Sink) -> Self {
+        Lines {
+            after: Duration::from_secs(5),
+            every: Duration::from_secs(30),
+            sink,
+            current: Mutex::new(None),
+        }
+    }
+
+    fn line(&self, text: &str) {
+        if let Ok(mut w) = self.sink.lock() {
+            // A log that cannot be written to is no reason to stop the work.
+            let _ = writeln!(w, "scantex: {text}");
+        }
+    }
+}
+
+impl Progress for Lines {
+    fn start(&self, stage: &str, total: u64) {
+        if let Ok(mut c) = self.current.lock() {
+            let now = Instant::now();
+            *c = Some(Running {
+                stage: stage.to_string(),
+                total,
+                pos: 0,
+                start: now,
+                printed: now,
+            });
+        }
+    }
+
+    fn advance(&self, n: u64) {
+        let mut text = None;
+        if let Ok(mut c) = self.current.lock() {
+            if let Some(r) = c.as_mut() {
+                r.pos += n;
+                if r.printed.elapsed() >= self.every {
+                    r.printed = Instant::now();
+                    text = Some(format!(
+                        "{}: {}/{} after {:.0} s",
+                        r.stage,
+                        r.pos,
+                        r.total,
+                        r.start.elapsed().as_secs_f64()
+                    ));
+                }
+            }
+        }
+        if let Some(t) = text {
+            self.line(&t);
+        }
+    }
+
+    fn finish(&self) {
+        let done = self.current.lock().ok().and_then(|mut c| c.take());
+        if let Some(r) = done {
+            let took = r.start.elapsed();
+            if took >= self.after {
+                self.line(&format!(
+                    "{}: {}/{} done in {:.1} s",
+                    r.stage,
+                    r.total,
+                    r.total,
+                    took.as_secs_f64()
+                ));
+            }
+        }
+    }
+
+    fn warn(&self, msg: &str) {
+        self.line(&format!("warning: {msg}"));
+    }
+
+    fn beside(&self) -> Box<dyn Progress + '_> {
+        Box::new(Lines {
+            after: self.after,
+            every: self.every,
+            sink: self.sink.clone(),
+            current: Mutex::new(None),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lines(after: u64, every: u64) -> (Lines, Arc<Mutex<Vec<u8>>>) {
+        let buf = Arc::new(Mutex::new(Vec::new()));
+        let mut l = Lines::to(buf.clone());
+        l.after = Duration::from_millis(after);
+        l.every = Duration::from_millis(every);
+        (l, buf)
+    }
+
+    fn text(buf: &Arc<Mutex<Vec<u8>>>) -> String {
+        String::from_utf8(buf.lock().unwrap().clone()).unwrap()
+    }
+
+    #[test]
+    fn a_long_stage_prints_its_count_and_its_end() {
+        let (l, buf) = lines(0, 0);
+        l.start("merging", 4);
+        l.advance(1);
+        l.advance(3);
+        l.finish();
+        l.warn("a photograph sees nothing");
+        let t = text(&buf);
+        let got: Vec<&str> = t.lines().collect();
+        assert_eq!(got.len(), 4, "{t}");
+        assert!(got[0].starts_with("scantex: merging: 1/4 after "), "{t}");
+        assert!(got[1].starts_with("scantex: merging: 4/4 after "), "{t}");
+        assert!(got[2].starts_with("scantex: merging: 4/4 done in "), "{t}");
+        assert!(got[2].ends_with(" s"), "{t}");
+        assert_eq!(got[3], "scantex: warning: a photograph sees nothing");
+    }
+
+    #[test]
+    fn a_short_stage_prints_nothing() {
+        let (l, buf) = lines(60_000, 60_000);
+        l.start("atlas", 10);
+        l.advance(10);
+        l.finish();
+        let beside = l.beside();
+        beside.start("binding", 3);
+        beside.advance(3);
+        beside.finish();
+        assert_eq!(text(&buf), "");
     }
 }
