@@ -325,6 +325,9 @@ pub struct PhotoBinding {
     pub vertices: u64,
     /// Background colour used for it, if any.
     pub background: Option<[f32; 3]>,
+    /// Whether an object mask (a mask file, or the photograph's alpha channel where it hides
+    /// pixels) decided where it shows the object.
+    pub masked: bool,
 }
 
 /// The valid photographs of every vertex, in compressed rows (`samples[offsets[v]..offsets[v +
@@ -656,6 +659,7 @@ pub fn bind(
             name: photos[pi].name.clone(),
             vertices: rej.kept,
             background,
+            masked: mask.is_some(),
         });
         for (p, e) in per_photo.iter_mut().zip(&evicted) {
             p.vertices -= e;

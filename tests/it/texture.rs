@@ -811,7 +811,14 @@ fn alpha_channels_mask_photographs() {
             }
         }
         let out = dir.path().join(format!("out_{name}"));
-        texture_to(&scene, &sized(512), &out);
+        let report = texture_to(&scene, &sized(512), &out);
+        // report.json says which photographs a mask decided.
+        let masked = report.per_photo.iter().all(|p| p.masked);
+        assert!(
+            masked == (masks || alpha(0) == Some(0)),
+            "{name}: {:?}",
+            report.per_photo
+        );
         let png = std::fs::read(out.join("model.png")).unwrap();
         (held_out(&sample, &out).psnr, png)
     };
