@@ -51,6 +51,28 @@ fn quietly<T>(f: impl FnOnce() -> T) -> T {
     out
 }
 
+/// Refuses a file that requires an extension this reader lacks, naming it: compressed meshes
+/// (Draco, meshopt) would otherwise fail as a list of accessors without data.
+fn check_required_extensions(path: &Path, json: &gltf::json::Root) -> Result<()> {
+    let Some(e) = json
+        .extensions_required
+        .iter()
+        .find(|e| !gltf::json::extensions::ENABLED_EXTENSIONS.contains(&e.as_str()))
+    else {
+        return Ok(());
+    };
+    let hint = if e.contains("draco") || e.contains("meshopt") {
+        "; scantex reads uncompressed meshes: export the mesh again without mesh compression"
+    } else {
+        ""
+    };
+    Err(Error::parse(
+        path,
+        crate::error::Location::File,
+        format!("the file requires the glTF extension {e}, which scantex does not read{hint}"),
+    ))
+}
+
 /// Parses the bytes of a `.gltf` or `.glb` file; external buffers and textures are looked up
 /// beside `path`, which also names the file in errors. Unlike [`read`], a panic inside the
 /// `gltf` crate is not caught here (so fuzzing sees it).
@@ -61,6 +83,7 @@ pub fn parse(path: &Path, bytes: &[u8]) -> Result<(Mesh, LoadReport)> {
     };
     check_glb_length(path, bytes)?;
     let raw = gltf::Gltf::from_slice_without_validation(bytes).map_err(gltf_error)?;
+    check_required_extensions(path, raw.document.as_json())?;
     check_position_accessors(path, raw.document.as_json())?;
     let g = gltf::Gltf {
         document: gltf::Document::from_json(raw.document.into_json()).map_err(gltf_error)?,

@@ -395,6 +395,31 @@ fn gltf_accessor_past_the_buffer() {
     assert!(err.contains("mesh.gltf"), "{err}");
 }
 
+/// A Draco-compressed glTF (its accessors have no data of their own) is refused for what it
+/// is, with what to do.
+#[test]
+fn gltf_with_compressed_meshes_names_the_extension() {
+    let d = setup();
+    std::fs::remove_file(d.path().join("mesh.obj")).unwrap();
+    std::fs::write(d.path().join("b.bin"), [0u8; 64]).unwrap();
+    let draco = "KHR_draco_mesh_compression";
+    let g = serde_json::json!({
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+        "extensionsUsed": [draco], "extensionsRequired": [draco],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0},
+            "extensions": {draco: {"bufferView": 0, "attributes": {"POSITION": 0}}}}]}],
+        "buffers": [{"uri": "b.bin", "byteLength": 64}],
+        "bufferViews": [{"buffer": 0, "byteLength": 64}],
+        "accessors": [{"componentType": 5126, "count": 3, "type": "VEC3",
+                       "min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 1.0]}]
+    });
+    std::fs::write(d.path().join("mesh.gltf"), g.to_string()).unwrap();
+    names(
+        &fails(d.path(), &["."]),
+        &["mesh.gltf", draco, "without mesh compression"],
+    );
+}
+
 #[test]
 fn atlas_options_out_of_range_and_meshes_without_uvs() {
     let d = setup();
