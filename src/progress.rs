@@ -205,7 +205,7 @@ impl Progress for Lines {
                 self.line(&format!(
                     "{}: {}/{} done in {:.1} s",
                     r.stage,
-                    r.total,
+                    r.pos,
                     r.total,
                     took.as_secs_f64()
                 ));
