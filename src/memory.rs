@@ -26,8 +26,10 @@ pub const VIEW_BYTES: u64 = 20;
 /// photographs around the object; the sample and the corset: 3-5).
 pub const ASSUMED_VIEWS: u64 = 16;
 /// Per pixel of the largest photograph: two in flight, RGB8, mip levels and depth map
-/// (12 MP photographs against 0.5 MP on the same page: 26 bytes per pixel).
-pub const PHOTO_PIXEL_BYTES: u64 = 26;
+/// (12 MP photographs against 0.5 MP on the same page: 26 bytes per pixel), plus a masked
+/// photograph's coverage levels (4 bytes per pixel of a third of a photograph, two in
+/// flight: 3 more).
+pub const PHOTO_PIXEL_BYTES: u64 = 29;
 /// Per texel of a page: the texel raster, the merge's layers and accumulators, the colour,
 /// source and weight planes, restoration's crops (16-41 measured across scenes and sides).
 pub const TEXEL_BYTES: u64 = 40;

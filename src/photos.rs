@@ -30,12 +30,13 @@ pub(crate) fn for_each_photo(
         photos,
         None,
         progress,
-        |_, _| (),
+        |_, _, _| (),
         |i, rgb, mask, ()| work(i, rgb, mask),
     )
 }
 
-/// [`for_each_photo`] with a per-photograph `prepare` step (depth map, mip pyramid) that runs
+/// [`for_each_photo`] with a per-photograph `prepare` step (depth map, mip pyramid; it gets
+/// the photograph and its mask) that runs
 /// with the decoding, beside `work` on the previous photograph, and whose result `work` gets.
 /// With `wanted`, only the photographs it marks are decoded and worked on (in order): a
 /// page's charts are seen by some of the photographs, and decoding is most of a photograph's
@@ -44,7 +45,7 @@ pub(crate) fn for_each_photo_with<T: Send>(
     photos: &[Photo],
     wanted: Option<&[bool]>,
     progress: &dyn Progress,
-    prepare: impl Fn(usize, &PhotoPixels) -> T + Sync,
+    prepare: impl Fn(usize, &PhotoPixels, Option<&GrayImage>) -> T + Sync,
     mut work: impl FnMut(usize, &PhotoPixels, Option<&GrayImage>, T) -> Result<()> + Send,
 ) -> Result<()> {
     let order: Vec<usize> = (0..photos.len())
@@ -57,7 +58,7 @@ pub(crate) fn for_each_photo_with<T: Send>(
     };
     let load = |i: usize, spare: Vec<u8>| -> Result<(Decoded, T)> {
         let d = decode(&photos[i], spare)?;
-        let t = prepare(i, &d.rgb);
+        let t = prepare(i, &d.rgb, d.mask.as_ref());
         Ok((d, t))
     };
     let mut current = load(first, Vec::new())?;

@@ -424,16 +424,19 @@ fn multiband(
     progress.start("merging", photos.len() as u64);
     let heap = crate::io::LargeBlocksInHeap::new();
     // The next photograph's depth map and mip levels are built while this one is sampled.
-    let setup = |pi: usize, rgb: &crate::io::image::PhotoPixels| prep.photo_setup(photos, pi, rgb);
+    let setup =
+        |pi: usize, rgb: &crate::io::image::PhotoPixels, mask: Option<&image::GrayImage>| {
+            prep.photo_setup(photos, pi, rgb, mask)
+        };
     let wanted = prep.photos_on_page(photos.len());
     for_each_photo_with(
         photos,
         Some(&wanted),
         progress,
         setup,
-        |pi, rgb, mask, setup| {
+        |pi, rgb, _mask, setup| {
             seconds_setup += setup.seconds;
-            let ph = prep.photo_with(photos, pi, rgb, mask, setup);
+            let ph = prep.photo_with(photos, pi, rgb, setup);
             let t = std::time::Instant::now();
             // One task per chart, largest first: rayon's adaptive split hands each core a run of
             // charts, and a run holding the largest ones left the other core idle (the corset's

@@ -268,16 +268,18 @@ pub fn resample_with(
     let (mut seconds_photo_setup, mut seconds_texels) = (0.0, 0.0);
     progress.start("resampling", photos.len() as u64);
     // The next photograph's depth map and mip levels are built while this one is sampled.
-    let setup = |pi: usize, rgb: &PhotoPixels| prep.photo_setup(photos, pi, rgb);
+    let setup = |pi: usize, rgb: &PhotoPixels, mask: Option<&GrayImage>| {
+        prep.photo_setup(photos, pi, rgb, mask)
+    };
     let wanted = prep.photos_on_page(photos.len());
     for_each_photo_with(
         photos,
         Some(&wanted),
         progress,
         setup,
-        |pi, rgb, mask, setup| {
+        |pi, rgb, _mask, setup| {
             seconds_photo_setup += setup.seconds;
-            let ph = prep.photo_with(photos, pi, rgb, mask, setup);
+            let ph = prep.photo_with(photos, pi, rgb, setup);
             let photo = pi as u32;
             let texels = std::time::Instant::now();
             acc.par_chunks_mut(BAND * n)
@@ -478,6 +480,60 @@ mod tests {
         assert!(!at(4.6, 2.0));
         assert!(at(0.2, 0.2), "edge pixels clamp");
         assert!(!at(-0.1, 1.0) && !at(1.0, 4.0), "outside the image");
+    }
+
+    /// With a mask, every mip level and every tap beside the outline gives the object's
+    /// colour, whatever the background's; without one, the levels average both (the box
+    /// filter as before).
+    #[test]
+    fn masked_mip_levels_average_object_pixels_only() {
+        // Object (grey 0.4) on columns 0..21, background (magenta or green) from 21; odd
+        // sides, so that levels drop a row and a column.
+        let (w, h) = (37u32, 19u32);
+        let photo = |bg: [u8; 3]| {
+            PhotoPixels::Rgb8(image::RgbImage::from_fn(w, h, |x, _| {
+                image::Rgb(if x < 21 { [102; 3] } else { bg })
+            }))
+        };
+        let mask =
+            image::GrayImage::from_fn(w, h, |x, _| image::Luma([if x < 21 { 255 } else { 0 }]));
+        let (a, b) = (photo([255, 0, 255]), photo([0, 255, 0]));
+        let (la, lb) = (
+            sampler::PhotoPyramid::levels_of(&a, Some(&mask), 8),
+            sampler::PhotoPyramid::levels_of(&b, Some(&mask), 8),
+        );
+        let (pa, pb) = (
+            sampler::PhotoPyramid {
+                base: &a,
+                levels: la,
+            },
+            sampler::PhotoPyramid {
+                base: &b,
+                levels: lb,
+            },
+        );
+        let grey = 102.0 / 255.0;
+        for l in 1..=4 {
+            for i in 0..=40 {
+                // Across the outline, inside the object's part of each level's grid.
+                let x = 19.0 + 0.05 * i as f64;
+                let px = nalgebra::Point2::new(x, 9.5);
+                let (ca, cb) = (pa.bilinear(l, &px), pb.bilinear(l, &px));
+                for k in 0..3 {
+                    assert!((ca[k] - grey).abs() < 1e-5, "level {l} at {x}: {ca:?}");
+                    assert!((cb[k] - grey).abs() < 1e-5, "level {l} at {x}: {cb:?}");
+                }
+                let t = pa.sample(&px, 5.3);
+                assert!(t.iter().all(|v| (v - grey).abs() < 1e-5), "{t:?}");
+            }
+        }
+        // Without the mask the first level beside the outline mixes in the background.
+        let plain = sampler::PhotoPyramid {
+            base: &a,
+            levels: sampler::PhotoPyramid::levels_of(&a, None, 8),
+        };
+        let c = plain.bilinear(1, &nalgebra::Point2::new(21.0, 9.5));
+        assert!(c[0] > grey + 0.1 && c[1] < grey - 0.1, "{c:?}");
     }
 
     /// A strip of 2n triangles over vertices 0..2n+2 (two rows).

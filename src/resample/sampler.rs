@@ -20,7 +20,93 @@ pub(super) fn clamp_bary(b: [f64; 3]) -> [f64; 3] {
 /// the levels below it are floats.
 pub(super) struct PhotoPyramid<'a> {
     pub(super) base: &'a PhotoPixels,
-    pub(super) levels: Vec<Rgb32FImage>,
+    pub(super) levels: MipLevels,
+}
+
+/// The levels below a photograph's base. With a mask, only object pixels are averaged: each
+/// level holds colour times coverage (the share of object pixels under it) and the coverage,
+/// and a sample divides the one by the other, so that the colour under the mask's black (a
+/// backdrop, a turntable, whatever a background-removal tool left) never reaches a texel
+/// through a coarse level or a tap beside the outline. The base needs no weights: a base
+/// sample reading a background pixel is refused ([`mask_holds`]).
+#[derive(Default)]
+pub struct MipLevels {
+    colour: Vec<Rgb32FImage>,
+    /// Per level, the share of object pixels; empty without a mask.
+    cover: Vec<Vec<f32>>,
+}
+
+/// One 2x2 box-filter reduction of the `w` x `h` single-channel values `raw`.
+fn half_size_1(raw: &[f32], w: u32, h: u32) -> Vec<f32> {
+    let (nw, nh) = (w as usize / 2, h as usize / 2);
+    let w = w as usize;
+    let mut out = vec![0f32; nw * nh];
+    out.par_chunks_mut(nw.max(1))
+        .enumerate()
+        .for_each(|(y, row)| {
+            let (r0, r1) = (&raw[2 * y * w..], &raw[(2 * y + 1) * w..]);
+            for (x, o) in row.iter_mut().enumerate() {
+                *o = 0.25 * (r0[2 * x] + r0[2 * x + 1] + r1[2 * x] + r1[2 * x + 1]);
+            }
+        });
+    out
+}
+
+/// The first level below a masked base: colour times coverage, and coverage (object pixels
+/// are those of mask value 128 and above).
+fn half_size_masked<V: Values + ?Sized>(
+    raw: &V,
+    mask: &[u8],
+    w: u32,
+    h: u32,
+) -> (Rgb32FImage, Vec<f32>) {
+    let (nw, nh) = (w / 2, h / 2);
+    let mut buf = vec![0f32; (nw * nh * 3) as usize];
+    let mut cover = vec![0f32; (nw * nh) as usize];
+    let (w, stride) = (w as usize, 3 * w as usize);
+    buf.par_chunks_mut((nw * 3) as usize)
+        .zip(cover.par_chunks_mut(nw as usize))
+        .enumerate()
+        .for_each(|(y, (row, crow))| {
+            let (m0, m1) = (2 * y * w, (2 * y + 1) * w);
+            let (r0, r1) = (2 * y * stride, (2 * y + 1) * stride);
+            for (x, (o, c)) in row.chunks_exact_mut(3).zip(crow.iter_mut()).enumerate() {
+                let taps = [
+                    (m0 + 2 * x, r0 + 6 * x),
+                    (m0 + 2 * x + 1, r0 + 6 * x + 3),
+                    (m1 + 2 * x, r1 + 6 * x),
+                    (m1 + 2 * x + 1, r1 + 6 * x + 3),
+                ];
+                let mut n = 0u32;
+                for (mi, ri) in taps {
+                    if mask[mi] >= 128 {
+                        n += 1;
+                        for (k, v) in o.iter_mut().enumerate() {
+                            *v += raw.value(ri + k);
+                        }
+                    }
+                }
+                o.iter_mut().for_each(|v| *v *= 0.25);
+                *c = 0.25 * n as f32;
+            }
+        });
+    (
+        Rgb32FImage::from_raw(nw, nh, buf).expect("sized nw*nh*3"),
+        cover,
+    )
+}
+
+/// Bilinear sample of the `w` x `h` single-channel values `raw`, as [`bilinear_in`].
+#[inline(always)]
+fn bilinear_1(raw: &[f32], w: u32, h: u32, x: f64, y: f64) -> f32 {
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = ((x - x0) as f32, (y - y0) as f32);
+    let cl = |v: f64, n: u32| (v.max(0.0) as u32).min(n - 1) as usize;
+    let (xa, xb, ya, yb) = (cl(x0, w), cl(x0 + 1.0, w), cl(y0, h), cl(y0 + 1.0, h));
+    let w = w as usize;
+    let top = raw[ya * w + xa] + (raw[ya * w + xb] - raw[ya * w + xa]) * fx;
+    let bot = raw[yb * w + xa] + (raw[yb * w + xb] - raw[yb * w + xa]) * fx;
+    top + (bot - top) * fy
 }
 
 /// One 2x2 box-filter reduction of the `w` x `h` RGB values `raw`.
@@ -68,36 +154,69 @@ pub(super) fn bilinear_in<V: Values + ?Sized>(raw: &V, w: u32, h: u32, x: f64, y
 }
 
 impl<'a> PhotoPyramid<'a> {
-    /// The levels below `base`, at most `levels`.
-    pub(super) fn levels_of(base: &PhotoPixels, levels: usize) -> Vec<Rgb32FImage> {
-        let mut out: Vec<Rgb32FImage> = Vec::new();
+    /// The levels below `base`, at most `levels`, weighted by `mask` if there is one.
+    pub(super) fn levels_of(
+        base: &PhotoPixels,
+        mask: Option<&GrayImage>,
+        levels: usize,
+    ) -> MipLevels {
+        let mask = mask.filter(|m| m.dimensions() == base.dimensions());
+        let mut out = MipLevels::default();
         for _ in 0..levels {
-            let (w, h) = match out.last() {
+            let (w, h) = match out.colour.last() {
                 Some(prev) => prev.dimensions(),
                 None => base.dimensions(),
             };
             if w < 2 || h < 2 {
                 break;
             }
-            let next = match (out.last(), base) {
-                (Some(prev), _) => half_size(prev.as_raw().as_slice(), w, h),
-                (None, PhotoPixels::Rgb8(img)) => half_size(img.as_raw().as_slice(), w, h),
-                (None, PhotoPixels::Rgb32F(img)) => half_size(img.as_raw().as_slice(), w, h),
+            let next = match out.colour.last() {
+                Some(prev) => {
+                    if let Some(c) = out.cover.last() {
+                        let c = half_size_1(c, w, h);
+                        out.cover.push(c);
+                    }
+                    half_size(prev.as_raw().as_slice(), w, h)
+                }
+                None => match (base, mask) {
+                    (PhotoPixels::Rgb8(img), Some(m)) => {
+                        let (c, cover) = half_size_masked(img.as_raw().as_slice(), m, w, h);
+                        out.cover.push(cover);
+                        c
+                    }
+                    (PhotoPixels::Rgb32F(img), Some(m)) => {
+                        let (c, cover) = half_size_masked(img.as_raw().as_slice(), m, w, h);
+                        out.cover.push(cover);
+                        c
+                    }
+                    (PhotoPixels::Rgb8(img), None) => half_size(img.as_raw().as_slice(), w, h),
+                    (PhotoPixels::Rgb32F(img), None) => half_size(img.as_raw().as_slice(), w, h),
+                },
             };
-            out.push(next);
+            out.colour.push(next);
         }
         out
     }
 
     /// Bilinear sample at photo pixel coordinate `px` (centres at +0.5) of level `l`.
     pub(super) fn bilinear(&self, l: usize, px: &Point2<f64>) -> [f32; 3] {
-        let l = l.min(self.levels.len());
+        let l = l.min(self.levels.colour.len());
         let f = (1u32 << l) as f64;
         let (x, y) = (px.x / f - 0.5, px.y / f - 0.5);
         if l > 0 {
-            let img = &self.levels[l - 1];
+            let img = &self.levels.colour[l - 1];
             let (w, h) = img.dimensions();
-            return bilinear_in(img.as_raw().as_slice(), w, h, x, y);
+            let c = bilinear_in(img.as_raw().as_slice(), w, h, x, y);
+            let Some(cover) = self.levels.cover.get(l - 1) else {
+                return c;
+            };
+            let a = bilinear_1(cover, w, h, x, y);
+            // No object pixel under the taps (only where the level's grid leaves the base's
+            // last row or column): the base sample, which the mask test passed.
+            if a < 1e-6 {
+                return self.bilinear(0, px);
+            }
+            return c.map(|v| v / a);
         }
         match self.base {
             PhotoPixels::Rgb8(img) => {
@@ -116,7 +235,7 @@ impl<'a> PhotoPyramid<'a> {
         if footprint.is_nan() || footprint <= 1.0 {
             return self.bilinear(0, px);
         }
-        let lod = footprint.log2().min(self.levels.len() as f64);
+        let lod = footprint.log2().min(self.levels.colour.len() as f64);
         let l0 = lod.floor() as usize;
         let a = self.bilinear(l0, px);
         if lod == l0 as f64 {
@@ -238,7 +357,8 @@ pub struct Sampler<'a> {
 /// beside the work on the previous photograph).
 pub struct PhotoSetup {
     pub(super) depth: Option<DepthMap>,
-    pub(super) levels: Vec<Rgb32FImage>,
+    pub(super) levels: MipLevels,
+    pub(super) taps: Option<GrayImage>,
     pub(super) projected: Vec<Option<[f64; 3]>>,
     pub(super) sampled: Vec<u64>,
     /// Seconds it took.
@@ -391,10 +511,17 @@ impl<'a> Sampler<'a> {
         self.atlas.face_rect(f)
     }
 
-    /// The part of getting photograph `pi` (decoded as `rgb`) ready to sample that takes
-    /// time: its projected vertices, depth map, mip levels and the faces that sample it,
-    /// owned, so that it can run beside the work on the previous photograph.
-    pub fn photo_setup(&self, photos: &[Photo], pi: usize, rgb: &PhotoPixels) -> PhotoSetup {
+    /// The part of getting photograph `pi` (decoded as `rgb`, with its `mask`) ready to
+    /// sample that takes time: its projected vertices, depth map, mip levels, mask taps and
+    /// the faces that sample it, owned, so that it can run beside the work on the previous
+    /// photograph.
+    pub fn photo_setup(
+        &self,
+        photos: &[Photo],
+        pi: usize,
+        rgb: &PhotoPixels,
+        mask: Option<&GrayImage>,
+    ) -> PhotoSetup {
         let view = &photos[pi].view;
         let t = std::time::Instant::now();
         let projected = crate::depth::project_vertices(self.mesh, view);
@@ -402,7 +529,7 @@ impl<'a> Sampler<'a> {
             let res = self.binding.options.depth_resolution;
             DepthMap::render_projected(self.mesh, view, &projected, res).eroded(1)
         });
-        let levels = PhotoPyramid::levels_of(rgb, if self.robust { 8 } else { 0 });
+        let levels = PhotoPyramid::levels_of(rgb, mask, if self.robust { 8 } else { 0 });
         // One test per face here instead of a search per face and chart in the loops.
         let photo = pi as u32;
         let sampled = (0..self.mesh.num_faces())
@@ -417,19 +544,19 @@ impl<'a> Sampler<'a> {
         PhotoSetup {
             depth,
             levels,
+            taps: mask.map(tap_mask),
             projected,
             sampled,
             seconds: t.elapsed().as_secs_f64(),
         }
     }
 
-    /// Photograph `pi` (decoded as `rgb`, with its mask) ready to sample, from its `setup`.
+    /// Photograph `pi` (decoded as `rgb`) ready to sample, from its `setup`.
     pub fn photo_with(
         &self,
         photos: &'a [Photo],
         pi: usize,
         rgb: &'a PhotoPixels,
-        mask: Option<&'a GrayImage>,
         setup: PhotoSetup,
     ) -> PhotoSampler<'a> {
         let view = &photos[pi].view;
@@ -443,7 +570,7 @@ impl<'a> Sampler<'a> {
                 base: rgb,
                 levels: setup.levels,
             },
-            taps: mask.map(tap_mask),
+            taps: setup.taps,
             centre: view.pose.center(),
             focal: focal_px(view),
         }
