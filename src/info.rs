@@ -66,6 +66,9 @@ pub struct ColmapInfo {
     pub photos_bad_count: usize,
     /// Photographs with a mask file.
     pub masks: usize,
+    /// Photographs whose file carries an alpha channel (read as a mask where it hides
+    /// pixels; whether it does is only known once decoded).
+    pub alpha: usize,
     /// Reprojection error over all observations, in pixels.
     pub reprojection: Option<ErrorStats>,
     /// Fraction of 3D points whose mean track error, recomputed here, matches COLMAP's stored
@@ -128,17 +131,22 @@ pub fn info(scene: &Scene) -> InfoReport {
         for c in rec.cameras.values() {
             *by_model.entry(c.model.name().to_string()).or_insert(0) += 1;
         }
-        let statuses: Vec<(String, PhotoStatus)> = {
+        let statuses: Vec<(String, PhotoStatus, bool)> = {
             use rayon::prelude::*;
             scene
                 .photos
                 .par_iter()
-                .map(|p| (p.name.clone(), p.status()))
+                .map(|p| {
+                    let st = p.status();
+                    let alpha = matches!(st, PhotoStatus::Ok)
+                        && crate::io::image::has_alpha(&p.path).unwrap_or(false);
+                    (p.name.clone(), st, alpha)
+                })
                 .collect()
         };
         let mut missing = Vec::new();
         let mut bad = Vec::new();
-        for (name, st) in &statuses {
+        for (name, st, _) in &statuses {
             match st {
                 PhotoStatus::Ok => {}
                 PhotoStatus::Missing => missing.push(name.clone()),
@@ -178,6 +186,7 @@ pub fn info(scene: &Scene) -> InfoReport {
             photos_missing_count: nm,
             photos_bad_count: nb,
             masks: scene.photos.iter().filter(|p| p.mask.is_some()).count(),
+            alpha: statuses.iter().filter(|s| s.2).count(),
             reprojection: ErrorStats::of(&mut all),
             stored_error_agreement: (!tracks.is_empty())
                 .then(|| agree as f64 / tracks.len() as f64),
@@ -265,6 +274,13 @@ impl fmt::Display for InfoReport {
                 writeln!(f, "    bad:     {n}: {why}")?;
             }
             writeln!(f, "  masks        {}", c.masks)?;
+            if c.alpha > 0 {
+                writeln!(
+                    f,
+                    "  alpha        {} (an alpha channel that hides pixels masks its photograph)",
+                    c.alpha
+                )?;
+            }
             if let Some(r) = &c.reprojection {
                 writeln!(
                     f,

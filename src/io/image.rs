@@ -139,6 +139,14 @@ fn jpeg_eoi_after_scan(data: &[u8]) -> std::result::Result<(), usize> {
     }
 }
 
+/// Whether the file's pixels carry an alpha channel, from its header (no pixel decoding).
+pub fn has_alpha(path: &Path) -> Result<bool> {
+    let decoder = open(path)?
+        .into_decoder()
+        .map_err(|e| decode_error(path, e))?;
+    Ok(image::ImageDecoder::color_type(&decoder).has_alpha())
+}
+
 /// Width and height from the file header, without decoding pixels.
 pub fn dimensions(path: &Path) -> Result<(u32, u32)> {
     open(path)?

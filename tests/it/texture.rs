@@ -832,6 +832,24 @@ fn alpha_channels_mask_photographs() {
             "{name}: {:?}",
             report.per_photo
         );
+        // `scantex info` counts the photographs whose files carry an alpha channel.
+        let loaded = Scene::load(&SceneSpec {
+            dir: Some(scene.clone()),
+            ..Default::default()
+        })
+        .unwrap();
+        let info = scantex::info::info(&loaded);
+        let with_alpha = info.colmap.as_ref().unwrap().alpha;
+        assert_eq!(
+            with_alpha,
+            if alpha(0).is_some() { 16 } else { 0 },
+            "{name}"
+        );
+        assert_eq!(
+            info.to_string()
+                .contains("alpha        16 (an alpha channel"),
+            with_alpha == 16
+        );
         let png = std::fs::read(out.join("model.png")).unwrap();
         (held_out(&sample, &out).psnr, png)
     };
