@@ -36,22 +36,6 @@ pub struct MipLevels {
     cover: Vec<Vec<f32>>,
 }
 
-/// One 2x2 box-filter reduction of the `w` x `h` single-channel values `raw`.
-fn half_size_1(raw: &[f32], w: u32, h: u32) -> Vec<f32> {
-    let (nw, nh) = (w as usize / 2, h as usize / 2);
-    let w = w as usize;
-    let mut out = vec![0f32; nw * nh];
-    out.par_chunks_mut(nw.max(1))
-        .enumerate()
-        .for_each(|(y, row)| {
-            let (r0, r1) = (&raw[2 * y * w..], &raw[(2 * y + 1) * w..]);
-            for (x, o) in row.iter_mut().enumerate() {
-                *o = 0.25 * (r0[2 * x] + r0[2 * x + 1] + r1[2 * x] + r1[2 * x + 1]);
-            }
-        });
-    out
-}
-
 /// The first level below a masked base: colour times coverage, and coverage (object pixels
 /// are those of mask value 128 and above).
 fn half_size_masked<V: Values + ?Sized>(
@@ -96,53 +80,51 @@ fn half_size_masked<V: Values + ?Sized>(
     )
 }
 
-/// Bilinear sample of the `w` x `h` single-channel values `raw`, as [`bilinear_in`].
-#[inline(always)]
-fn bilinear_1(raw: &[f32], w: u32, h: u32, x: f64, y: f64) -> f32 {
-    let (x0, y0) = (x.floor(), y.floor());
-    let (fx, fy) = ((x - x0) as f32, (y - y0) as f32);
-    let cl = |v: f64, n: u32| (v.max(0.0) as u32).min(n - 1) as usize;
-    let (xa, xb, ya, yb) = (cl(x0, w), cl(x0 + 1.0, w), cl(y0, h), cl(y0 + 1.0, h));
-    let w = w as usize;
-    let top = raw[ya * w + xa] + (raw[ya * w + xb] - raw[ya * w + xa]) * fx;
-    let bot = raw[yb * w + xa] + (raw[yb * w + xb] - raw[yb * w + xa]) * fx;
-    top + (bot - top) * fy
+/// One 2x2 box-filter reduction of the `w` x `h` values `raw` of `C` channels.
+fn half_size_n<const C: usize, V: Values + ?Sized>(raw: &V, w: u32, h: u32) -> Vec<f32> {
+    let (nw, nh) = (w as usize / 2, h as usize / 2);
+    let mut buf = vec![0f32; nw * nh * C];
+    let stride = C * w as usize;
+    buf.par_chunks_mut((nw * C).max(1))
+        .enumerate()
+        .for_each(|(y, row)| {
+            let (r0, r1) = (2 * y * stride, (2 * y + 1) * stride);
+            for (x, o) in row.chunks_exact_mut(C).enumerate() {
+                let (a, b) = (r0 + 2 * C * x, r1 + 2 * C * x);
+                for (k, v) in o.iter_mut().enumerate() {
+                    *v = 0.25
+                        * (raw.value(a + k)
+                            + raw.value(a + C + k)
+                            + raw.value(b + k)
+                            + raw.value(b + C + k));
+                }
+            }
+        });
+    buf
 }
 
 /// One 2x2 box-filter reduction of the `w` x `h` RGB values `raw`.
 pub(super) fn half_size<V: Values + ?Sized>(raw: &V, w: u32, h: u32) -> Rgb32FImage {
-    let (nw, nh) = (w / 2, h / 2);
-    let mut buf = vec![0f32; (nw * nh * 3) as usize];
-    let stride = 3 * w as usize;
-    buf.par_chunks_mut((nw * 3) as usize)
-        .enumerate()
-        .for_each(|(y, row)| {
-            let (r0, r1) = (2 * y * stride, (2 * y + 1) * stride);
-            for (x, o) in row.chunks_exact_mut(3).enumerate() {
-                let (a, b) = (r0 + 6 * x, r1 + 6 * x);
-                for (k, v) in o.iter_mut().enumerate() {
-                    *v = 0.25
-                        * (raw.value(a + k)
-                            + raw.value(a + 3 + k)
-                            + raw.value(b + k)
-                            + raw.value(b + 3 + k));
-                }
-            }
-        });
-    Rgb32FImage::from_raw(nw, nh, buf).expect("sized nw*nh*3")
+    Rgb32FImage::from_raw(w / 2, h / 2, half_size_n::<3, V>(raw, w, h)).expect("sized nw*nh*3")
 }
 
 /// Bilinear sample at pixel coordinate (`x`, `y`) (pixel units, centres at integers) of the
-/// `w` x `h` RGB values `raw`, clamped at the borders.
+/// `w` x `h` values `raw` of `C` channels, clamped at the borders.
 #[inline(always)]
-pub(super) fn bilinear_in<V: Values + ?Sized>(raw: &V, w: u32, h: u32, x: f64, y: f64) -> [f32; 3] {
+fn bilinear_n<const C: usize, V: Values + ?Sized>(
+    raw: &V,
+    w: u32,
+    h: u32,
+    x: f64,
+    y: f64,
+) -> [f32; C] {
     let (x0, y0) = (x.floor(), y.floor());
     let (fx, fy) = ((x - x0) as f32, (y - y0) as f32);
     let cl = |v: f64, n: u32| (v.max(0.0) as u32).min(n - 1);
     let (xa, xb, ya, yb) = (cl(x0, w), cl(x0 + 1.0, w), cl(y0, h), cl(y0 + 1.0, h));
-    let at = |x: u32, y: u32| -> [f32; 3] {
-        let i = 3 * (y as usize * w as usize + x as usize);
-        [raw.value(i), raw.value(i + 1), raw.value(i + 2)]
+    let at = |x: u32, y: u32| -> [f32; C] {
+        let i = C * (y as usize * w as usize + x as usize);
+        std::array::from_fn(|k| raw.value(i + k))
     };
     let (p00, p10) = (at(xa, ya), at(xb, ya));
     let (p01, p11) = (at(xa, yb), at(xb, yb));
@@ -151,6 +133,12 @@ pub(super) fn bilinear_in<V: Values + ?Sized>(raw: &V, w: u32, h: u32, x: f64, y
         let bot = p01[k] + (p11[k] - p01[k]) * fx;
         top + (bot - top) * fy
     })
+}
+
+/// [`bilinear_n`] of RGB values.
+#[inline(always)]
+pub(super) fn bilinear_in<V: Values + ?Sized>(raw: &V, w: u32, h: u32, x: f64, y: f64) -> [f32; 3] {
+    bilinear_n::<3, V>(raw, w, h, x, y)
 }
 
 impl<'a> PhotoPyramid<'a> {
@@ -173,7 +161,7 @@ impl<'a> PhotoPyramid<'a> {
             let next = match out.colour.last() {
                 Some(prev) => {
                     if let Some(c) = out.cover.last() {
-                        let c = half_size_1(c, w, h);
+                        let c = half_size_n::<1, [f32]>(c.as_slice(), w, h);
                         out.cover.push(c);
                     }
                     half_size(prev.as_raw().as_slice(), w, h)
@@ -210,7 +198,7 @@ impl<'a> PhotoPyramid<'a> {
             let Some(cover) = self.levels.cover.get(l - 1) else {
                 return c;
             };
-            let a = bilinear_1(cover, w, h, x, y);
+            let [a] = bilinear_n::<1, [f32]>(cover.as_slice(), w, h, x, y);
             // No object pixel under the taps (only where the level's grid leaves the base's
             // last row or column): the base sample, which the mask test passed.
             if a < 1e-6 {
