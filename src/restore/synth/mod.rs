@@ -524,17 +524,19 @@ fn source_cap(max: usize, queries: usize) -> usize {
 /// See [`source_cap`].
 const SOURCES_PER_QUERY: usize = 8;
 
-/// How much better than the tree's descent-only match the coherent candidate must be (on top
-/// of Hertzmann's factor) to be taken without the exact search. The descent's match is no
-/// better than the exact one, so without a margin every texel whose exact match would have
-/// won by less than the gap between the two took the coherent candidate instead. On the 54
-/// OpenCV cases (`tests/it/restore_reference.rs`), mean PSNR against searching every texel
-/// with the same seed: 1 lost 0.06 dB (two seeds), 2 lost 0.03 (eleven), 4 lost 0.01 (ten;
-/// between seeds the mean moves by 0.08 dB); synthesis of the 4096² benchmark took 5.5, 7.1
-/// and 7.9 s against 19.0 s (`docs/decisions.md`, "The exact search only where it could win").
-const DESCENT_MARGIN: f32 = 4.0;
 /// See [`source_cap`].
 const MIN_SOURCES: usize = 4096;
+
+/// How much better than the tree's descent-only match the coherent candidate must be (on top
+/// of Hertzmann's factor) to be taken without the exact search. The descent's match is no
+/// nearer in the reduced space than the exact search's, so without a margin every texel
+/// whose exact match would have won by less than the gap between the two took the coherent
+/// candidate instead. On the 54 OpenCV cases (`tests/it/restore_reference.rs`), mean PSNR
+/// against searching every texel with the same seed: 1 lost 0.06 dB (two seeds), 2 lost 0.03
+/// (eleven), 4 lost 0.01 (ten; between seeds the mean moves by 0.08 dB); synthesis of the
+/// 4096² benchmark took 5.5, 7.1 and 7.9 s against 19.0 s (`docs/decisions.md`, "The exact
+/// search only where it could win").
+const DESCENT_MARGIN: f32 = 4.0;
 
 #[allow(clippy::too_many_arguments)]
 fn build_sources(
@@ -715,7 +717,7 @@ fn fill_hole(
             }
         }
         // Hertzmann's switch needs the exact match only where it could beat the coherent
-        // candidate by the factor: the descent's match bounds the exact one from above, so
+        // candidate by the factor: the descent's match is no nearer than the exact one, so
         // when the coherent candidate wins against it by DESCENT_MARGIN as well, the exact
         // search is skipped (the paper's exact method searches every texel).
         let mut best: Option<(f32, u32, bool)> = None;

@@ -7,7 +7,7 @@ use super::*;
 pub(super) trait Search: Send + Sync {
     fn nearest(&self, v: &[f32], k: usize, out: &mut Vec<u32>);
     /// The source in the leaf the query descends to, without backtracking: a match no
-    /// better than the exact one, found in a small fraction of its time.
+    /// nearer than the exact search's, found in a small fraction of its time.
     fn descend(&self, v: &[f32]) -> u32;
 }
 
