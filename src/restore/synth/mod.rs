@@ -722,23 +722,21 @@ fn fill_hole(
         // search is skipped (the paper's exact method searches every texel).
         let mut best: Option<(f32, u32, bool)> = None;
         let mut projected = false;
-        let settled = !p.exact
-            && best_coh.is_some_and(|bc| {
-                sources[o].as_ref().is_some_and(|s| {
-                    s.tree.as_ref().is_some_and(|tree| {
-                        let h = match &s.pca {
-                            None => tree.descend(&query),
-                            Some(pca) => {
-                                pca.project(&query, &mut red);
-                                projected = true;
-                                tree.descend(&red)
-                            }
-                        } as usize;
-                        let d = dist2(&query, &s.vectors[h * dim..(h + 1) * dim]);
-                        bc.0 * DESCENT_MARGIN <= d * factor
-                    })
-                })
-            });
+        let mut settled = false;
+        if let (false, Some(bc), Some(s)) = (p.exact, best_coh, &sources[o]) {
+            if let Some(tree) = &s.tree {
+                let h = match &s.pca {
+                    None => tree.descend(&query),
+                    Some(pca) => {
+                        pca.project(&query, &mut red);
+                        projected = true;
+                        tree.descend(&red)
+                    }
+                } as usize;
+                let d = dist2(&query, &s.vectors[h * dim..(h + 1) * dim]);
+                settled = bc.0 * DESCENT_MARGIN <= d * factor;
+            }
+        }
         if settled {
             // The coherent candidate is the pick.
         } else if let Some(s) = &sources[o] {
