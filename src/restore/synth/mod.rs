@@ -40,11 +40,27 @@ pub(crate) struct Level {
     pub domain: Vec<bool>,
     /// Texels to synthesise (a subset of the domain).
     pub mask: Vec<bool>,
+    /// The domain without the mask: texels a source may read. Kept beside the two because
+    /// testing a source reads it thirteen times.
+    pub known: Vec<bool>,
 }
 
 impl Level {
+    fn new(w: usize, h: usize, data: Vec<f32>, domain: Vec<bool>, mask: Vec<bool>) -> Level {
+        let known = domain.iter().zip(&mask).map(|(&d, &m)| d && !m).collect();
+        Level {
+            w,
+            h,
+            data,
+            domain,
+            mask,
+            known,
+        }
+    }
+
+    #[inline]
     fn known(&self, i: usize) -> bool {
-        self.domain[i] && !self.mask[i]
+        self.known[i]
     }
 }
 
@@ -63,13 +79,13 @@ pub(crate) fn pyramid(
     domain: &[bool],
     levels: usize,
 ) -> Vec<Level> {
-    let mut out = vec![Level {
+    let mut out = vec![Level::new(
         w,
         h,
-        data: band,
-        domain: domain.to_vec(),
-        mask: mask.iter().zip(domain).map(|(&m, &d)| m && d).collect(),
-    }];
+        band,
+        domain.to_vec(),
+        mask.iter().zip(domain).map(|(&m, &d)| m && d).collect(),
+    )];
     while out.len() < levels {
         let l = out.last().expect("level 0 exists");
         let (w2, h2) = (l.w.div_ceil(2), l.h.div_ceil(2));
@@ -122,19 +138,17 @@ pub(crate) fn pyramid(
                 (d, dom, m)
             })
             .collect();
-        let mut lv = Level {
-            w: w2,
-            h: h2,
-            data: Vec::with_capacity(w2 * h2 * ch),
-            domain: Vec::with_capacity(w2 * h2),
-            mask: Vec::with_capacity(w2 * h2),
-        };
+        let (mut data, mut dm, mut mk) = (
+            Vec::with_capacity(w2 * h2 * ch),
+            Vec::with_capacity(w2 * h2),
+            Vec::with_capacity(w2 * h2),
+        );
         for (d, dom, m) in rows {
-            lv.data.extend(d);
-            lv.domain.extend(dom);
-            lv.mask.extend(m);
+            data.extend(d);
+            dm.extend(dom);
+            mk.extend(m);
         }
-        out.push(lv);
+        out.push(Level::new(w2, h2, data, dm, mk));
     }
     out
 }
@@ -291,6 +305,19 @@ fn dims(i: usize, n: usize, ch: usize) -> usize {
     ch * (12 + if above >= 1 { 9 } else { 0 } + above.saturating_sub(1))
 }
 
+/// Appends texel `j`'s `ch` channels of `data` to `out`. Three channels (every atlas) are
+/// copied as a fixed-size array: a slice of run-time length is a call to `memcpy`, which was
+/// the largest single item of building the sources' vectors (`perf` on the corset scene).
+#[inline(always)]
+fn push_texel(out: &mut Vec<f32>, data: &[f32], j: usize, ch: usize) {
+    if ch == 3 {
+        let t: &[f32; 3] = data[j * 3..j * 3 + 3].try_into().expect("three channels");
+        out.extend_from_slice(t);
+    } else {
+        out.extend_from_slice(&data[j * ch..j * ch + ch]);
+    }
+}
+
 /// Appends the coarser levels' part of the neighbourhood of level-`i` texel (x, y).
 fn context(coarse: &[Level], x: usize, y: usize, ch: usize, out: &mut Vec<f32>) {
     for (k, l) in coarse.iter().enumerate() {
@@ -307,11 +334,11 @@ fn context(coarse: &[Level], x: usize, y: usize, ch: usize, out: &mut Vec<f32>) 
                     if !l.domain[j] {
                         j = centre;
                     }
-                    out.extend_from_slice(&l.data[j * ch..j * ch + ch]);
+                    push_texel(out, &l.data, j, ch);
                 }
             }
         } else {
-            out.extend_from_slice(&l.data[centre * ch..centre * ch + ch]);
+            push_texel(out, &l.data, centre, ch);
         }
     }
 }
@@ -337,9 +364,29 @@ fn valid_source(l: &Level, q: usize, o: usize) -> bool {
 fn source_vector(l: &Level, coarse: &[Level], q: usize, o: usize, ch: usize, out: &mut Vec<f32>) {
     out.clear();
     for j in kernel(l, q, o).expect("valid source") {
-        out.extend_from_slice(&l.data[j * ch..j * ch + ch]);
+        push_texel(out, &l.data, j, ch);
     }
     context(coarse, q % l.w, q / l.w, ch, out);
+}
+
+/// A 64-bit key of a vector's bits for finding repeated vectors: FNV-1a in four lanes (the
+/// dimensions modulo 4), combined in order. One lane's multiplications form a chain of
+/// dependent steps, four lanes run side by side. A collision merely drops one more source.
+fn vector_key(v: &[f32]) -> u64 {
+    const PRIME: u64 = 0x0000_0100_0000_01B3;
+    let mut h = [0xcbf2_9ce4_8422_2325u64; 4];
+    let mut it = v.chunks_exact(4);
+    for c in &mut it {
+        for (h, x) in h.iter_mut().zip(c) {
+            *h = (*h ^ x.to_bits() as u64).wrapping_mul(PRIME);
+        }
+    }
+    for (h, x) in h.iter_mut().zip(it.remainder()) {
+        *h = (*h ^ x.to_bits() as u64).wrapping_mul(PRIME);
+    }
+    h.iter().fold(v.len() as u64, |a, &b| {
+        (a ^ b).wrapping_mul(PRIME).rotate_left(29)
+    })
 }
 
 #[inline]
@@ -604,11 +651,7 @@ fn build_sources(
     let mut kept = Vec::with_capacity(positions.len());
     for &q in &positions {
         source_vector(l, coarse, q as usize, o, ch, &mut v);
-        // FNV-1a of the bits: a collision merely drops one more source.
-        let key = v.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, x| {
-            (h ^ x.to_bits() as u64).wrapping_mul(0x0000_0100_0000_01B3)
-        });
-        if seen.insert(key) {
+        if seen.insert(vector_key(&v)) {
             vectors.extend_from_slice(&v);
             kept.push(q);
         }
@@ -680,7 +723,7 @@ fn fill_hole(
             if slot[j] != u32::MAX {
                 query.extend_from_slice(&vals[slot[j] as usize][..ch]);
             } else {
-                query.extend_from_slice(&l.data[j * ch..j * ch + ch]);
+                push_texel(&mut query, &l.data, j, ch);
             }
         }
         context(coarse, t % l.w, t / l.w, ch, &mut query);
@@ -825,13 +868,7 @@ mod tests {
                 (8..20).contains(&x) && (5..15).contains(&y) && !(x == 12 && y < 10)
             })
             .collect();
-        let l = Level {
-            w,
-            h,
-            data: vec![0.0; w * h],
-            domain: vec![true; w * h],
-            mask,
-        };
+        let l = Level::new(w, h, vec![0.0; w * h], vec![true; w * h], mask);
         let comps = components(&l);
         assert_eq!(comps.len(), 1);
         let mut slot = vec![u32::MAX; w * h];
