@@ -668,7 +668,7 @@ fn build_sources(
     let (pca, tree) = if p.exact {
         (None, build_tree(&vectors, dim))
     } else {
-        let pca = Pca::fit(&vectors, dim, 0.95, PCA_MAX_ROWS);
+        let pca = Pca::fit(&vectors, dim, 0.95);
         let mut red = Vec::with_capacity(positions.len() * pca.rows);
         let mut r = Vec::new();
         for c in vectors.chunks(dim) {

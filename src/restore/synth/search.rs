@@ -104,7 +104,7 @@ pub(super) const PCA_SAMPLE: usize = 1024;
 /// Longest neighbourhood vector a tree accepts.
 pub(crate) const MAX_DIMS: usize = 128;
 
-/// PCA projection: `rows` x `dim` matrix and the mean.
+/// PCA projection: the mean and `rows` basis vectors of `dim` numbers (stored transposed).
 pub(super) struct Pca {
     pub(super) mean: Vec<f32>,
     /// The basis transposed: for each dimension, its weight in each of the `rows` rows, padded
@@ -114,7 +114,9 @@ pub(super) struct Pca {
 }
 
 impl Pca {
-    pub(super) fn fit(vectors: &[f32], dim: usize, keep: f64, max_rows: usize) -> Pca {
+    /// Fits the components that hold `keep` of the variance of `vectors` (rows of `dim`),
+    /// at most [`PCA_MAX_ROWS`] of them, on every n-th vector ([`PCA_SAMPLE`]).
+    pub(super) fn fit(vectors: &[f32], dim: usize, keep: f64) -> Pca {
         let n = vectors.len() / dim;
         let step = (n / PCA_SAMPLE).max(1);
         let sample: Vec<&[f32]> = vectors.chunks(dim).step_by(step).collect();
@@ -159,7 +161,7 @@ impl Pca {
         let mut rows = 0;
         let mut acc = 0.0;
         for &k in &order {
-            if rows >= max_rows.min(PCA_MAX_ROWS) || (total > 0.0 && acc >= keep * total) {
+            if rows >= PCA_MAX_ROWS || (total > 0.0 && acc >= keep * total) {
                 break;
             }
             acc += eig.eigenvalues[k].max(0.0);
