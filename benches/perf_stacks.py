@@ -1,14 +1,16 @@
 #!/usr/bin/env python3
 """Where one function's time goes inside a scantex run, from `perf` call stacks (issue 23).
 
-    python3 benches/perf_stacks.py BIN SCENE [--within build_sources] [--parts a,b,c] [--rounds N]
+    python3 benches/perf_stacks.py BIN [BIN...] --scene SCENE [--within build_sources]
+                                   [--parts a,b,c] [--rounds N]
 
 Runs `BIN texture SCENE -o <tmp> -q` under `perf record --call-graph dwarf` (the release
 profile keeps line tables, so inlined functions have names), then counts the samples whose
 stack holds `--within`, and of those the ones whose frames below it hold each of `--parts`
-(the first that matches; `other` for none). Samples are of CPU time at 1999 Hz, so counts
-divided by 1999 are CPU seconds. This machine's speed drifts from hour to hour: compare
-builds by their shares of the run's samples, alternating them (`--rounds`), not by seconds.
+(the first that matches; `other` for none). Samples are of CPU time (`cpu-clock`) at 1999
+Hz, so counts divided by 1999 are CPU seconds. This machine's speed drifts from hour to
+hour: compare builds by their shares of the run's samples, alternating them (`--rounds`),
+not by seconds.
 Needs `perf` (Debian: linux-perf).
 """
 import argparse
@@ -68,7 +70,7 @@ def main():
             for b in o.bin:
                 data = os.path.join(tmp, "perf.data")
                 subprocess.run(
-                    ["perf", "record", "-q", "-F", "1999", "--call-graph", "dwarf,16384", "-o", data,
+                    ["perf", "record", "-q", "-e", "cpu-clock", "-F", "1999", "--call-graph", "dwarf,16384", "-o", data,
                      b, "texture", o.scene, "-o", os.path.join(tmp, "out"), "-q"],
                     check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
                 script = subprocess.run(["perf", "script", "-i", data, "-F", "ip,sym"],
