@@ -41,8 +41,9 @@ pub(crate) struct Level {
     /// Texels to synthesise (a subset of the domain).
     pub mask: Vec<bool>,
     /// The domain without the mask: texels a source may read. Kept beside the two because
-    /// testing a source reads it thirteen times.
-    pub known: Vec<bool>,
+    /// testing a source reads it thirteen times; private, so that only [`Level::new`] sets
+    /// it from them.
+    known: Vec<bool>,
 }
 
 impl Level {

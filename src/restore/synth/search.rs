@@ -216,3 +216,33 @@ impl Pca {
         out.extend_from_slice(&acc[..self.rows]);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::SplitMix64;
+
+    #[test]
+    fn projection_is_the_same_bits_as_one_dot_product_per_row() {
+        let mut rng = SplitMix64::new(3);
+        let mut r = || (rng.next_u64() % 2001) as f32 / 1000.0 - 1.0;
+        let (dim, n) = (66, 3000);
+        let vectors: Vec<f32> = (0..dim * n).map(|_| r()).collect();
+        let pca = Pca::fit(&vectors, dim, 0.95);
+        assert!(pca.rows >= 1 && pca.rows <= PCA_MAX_ROWS);
+        let mut out = Vec::new();
+        for v in vectors.chunks(dim).take(50) {
+            pca.project(v, &mut out);
+            assert_eq!(out.len(), pca.rows);
+            for (row, &got) in out.iter().enumerate() {
+                let want: f32 = v
+                    .iter()
+                    .zip(&pca.mean)
+                    .enumerate()
+                    .map(|(k, (x, m))| (x - m) * pca.basis_t[k * PCA_MAX_ROWS + row])
+                    .sum();
+                assert_eq!(got.to_bits(), want.to_bits(), "row {row}");
+            }
+        }
+    }
+}
