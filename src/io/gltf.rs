@@ -7,7 +7,6 @@ use crate::error::{Error, Result};
 use crate::mesh::{LoadReport, Mesh, TextureSource, UvMap, VertexId};
 use nalgebra::{Matrix3, Matrix4, Point3, Vector2, Vector3};
 use serde_json::json;
-use std::collections::HashMap;
 use std::path::Path;
 
 /// Reads a `.gltf` or `.glb` file. The `gltf` crate validates indices but may still panic
@@ -396,6 +395,13 @@ pub fn write_glb_pages(
     mesh: &Mesh,
     textures: &[EncodedTexture],
 ) -> Result<()> {
+    let bytes = glb_bytes(path, mesh, textures)?;
+    staged.write(path, &bytes)
+}
+
+/// The bytes [`write_glb_pages`] writes to `path` (named in errors), so that they can be
+/// built beside other work.
+pub fn glb_bytes(path: &Path, mesh: &Mesh, textures: &[EncodedTexture]) -> Result<Vec<u8>> {
     for t in textures {
         if t.mime != "image/png" && t.mime != "image/jpeg" {
             return Err(Error::at_element(
@@ -415,7 +421,14 @@ pub fn write_glb_pages(
     };
     // One output vertex per distinct (position, uv) pair; indices per page. A UV belongs to
     // one chart, so to one page: the page it is moved from.
-    let mut remap: HashMap<(u32, u32), u32> = HashMap::new();
+    // FxHash: the map only looks keys up (ids follow first use), and SipHash over a million
+    // faces' corners was most of the writer's time.
+    let mut remap: rustc_hash::FxHashMap<(u32, u32), u32> = Default::default();
+    remap.reserve(
+        mesh.uv
+            .as_ref()
+            .map_or(mesh.positions.len(), |uv| uv.coords.len()),
+    );
     let mut src: Vec<(u32, u32)> = Vec::new();
     let mut src_page: Vec<u32> = Vec::new();
     let mut indices: Vec<Vec<u32>> = vec![Vec::new(); pages];
@@ -582,7 +595,7 @@ pub fn write_glb_pages(
     out.extend((bin.len() as u32).to_le_bytes());
     out.extend(b"BIN\0");
     out.extend(&bin);
-    staged.write(path, &out)
+    Ok(out)
 }
 
 fn f32_bytes<'a>(v: impl Iterator<Item = &'a f32>) -> Vec<u8> {

@@ -275,6 +275,30 @@ pub fn write_pages(
     mesh: &Mesh,
     textures: &[EncodedTexture],
 ) -> Result<()> {
+    encode_pages(path, mesh, textures).write(staged)
+}
+
+/// The files [`write_pages`] writes, encoded: the textures, the material and the OBJ, in the
+/// order they are written (and moved into place).
+pub struct ObjFiles<'t> {
+    files: Vec<(std::path::PathBuf, std::borrow::Cow<'t, [u8]>)>,
+}
+
+impl ObjFiles<'_> {
+    /// Writes the files in their order.
+    pub fn write(&self, staged: &mut Staged) -> Result<()> {
+        for (path, bytes) in &self.files {
+            staged.write(path, bytes)?;
+        }
+        Ok(())
+    }
+}
+
+/// [`write_pages`]' files, encoded but not written, so that the OBJ can be formatted beside
+/// other work.
+pub fn encode_pages<'t>(path: &Path, mesh: &Mesh, textures: &'t [EncodedTexture]) -> ObjFiles<'t> {
+    use std::borrow::Cow;
+    let mut files = Vec::new();
     let stem = path
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
@@ -368,12 +392,19 @@ pub fn write_pages(
                 mtl,
                 "newmtl {name}\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\nmap_Kd {tex_name}\n"
             );
-            staged.write(&path.with_file_name(&tex_name), &tex.bytes)?;
+            files.push((
+                path.with_file_name(&tex_name),
+                Cow::Borrowed(&tex.bytes[..]),
+            ));
             if !paged {
                 break;
             }
         }
-        staged.write(&path.with_file_name(format!("{stem}.mtl")), mtl.as_bytes())?;
+        files.push((
+            path.with_file_name(format!("{stem}.mtl")),
+            Cow::Owned(mtl.into_bytes()),
+        ));
     }
-    staged.write(path, s.as_bytes())
+    files.push((path.to_path_buf(), Cow::Owned(s.into_bytes())));
+    ObjFiles { files }
 }

@@ -424,11 +424,12 @@ fn multiband(
     progress.start("merging", photos.len() as u64);
     let heap = crate::io::LargeBlocksInHeap::new();
     // The next photograph's depth map and mip levels are built while this one is sampled.
+    let wanted = prep.photos_on_page(photos.len());
+    let spare = crate::resample::SpareLevels::for_loop(wanted.iter().filter(|&&w| w).count());
     let setup =
         |pi: usize, rgb: &crate::io::image::PhotoPixels, mask: Option<&image::GrayImage>| {
-            prep.photo_setup(photos, pi, rgb, mask)
+            prep.photo_setup(photos, pi, rgb, mask, &spare)
         };
-    let wanted = prep.photos_on_page(photos.len());
     for_each_photo_with(
         photos,
         Some(&wanted),
@@ -457,6 +458,7 @@ fn multiband(
                 )
             });
             seconds_charts += t.elapsed().as_secs_f64();
+            spare.give(ph);
             Ok(())
         },
     )?;

@@ -38,7 +38,7 @@ pub use classify::{classify, fill_vertex_colors};
 pub(crate) use classify::{face_runs, FaceLists};
 #[cfg(test)]
 use sampler::*;
-pub use sampler::{PhotoSampler, PhotoSetup, Sampler};
+pub use sampler::{PhotoSampler, PhotoSetup, Sampler, SpareLevels};
 
 /// The paper's triangle classes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -268,10 +268,11 @@ pub fn resample_with(
     let (mut seconds_photo_setup, mut seconds_texels) = (0.0, 0.0);
     progress.start("resampling", photos.len() as u64);
     // The next photograph's depth map and mip levels are built while this one is sampled.
-    let setup = |pi: usize, rgb: &PhotoPixels, mask: Option<&GrayImage>| {
-        prep.photo_setup(photos, pi, rgb, mask)
-    };
     let wanted = prep.photos_on_page(photos.len());
+    let spare = SpareLevels::for_loop(wanted.iter().filter(|&&w| w).count());
+    let setup = |pi: usize, rgb: &PhotoPixels, mask: Option<&GrayImage>| {
+        prep.photo_setup(photos, pi, rgb, mask, &spare)
+    };
     for_each_photo_with(
         photos,
         Some(&wanted),
@@ -315,6 +316,7 @@ pub fn resample_with(
                     }
                 });
             seconds_texels += texels.elapsed().as_secs_f64();
+            spare.give(ph);
             Ok(())
         },
     )?;
@@ -499,8 +501,8 @@ mod tests {
             image::GrayImage::from_fn(w, h, |x, _| image::Luma([if x < 21 { 255 } else { 0 }]));
         let (a, b) = (photo([255, 0, 255]), photo([0, 255, 0]));
         let (la, lb) = (
-            sampler::PhotoPyramid::levels_of(&a, Some(&mask), 8),
-            sampler::PhotoPyramid::levels_of(&b, Some(&mask), 8),
+            sampler::PhotoPyramid::levels_of(&a, Some(&mask), 8, &Default::default()),
+            sampler::PhotoPyramid::levels_of(&b, Some(&mask), 8, &Default::default()),
         );
         let (pa, pb) = (
             sampler::PhotoPyramid {
@@ -530,10 +532,56 @@ mod tests {
         // Without the mask the first level beside the outline mixes in the background.
         let plain = sampler::PhotoPyramid {
             base: &a,
-            levels: sampler::PhotoPyramid::levels_of(&a, None, 8),
+            levels: sampler::PhotoPyramid::levels_of(&a, None, 8, &Default::default()),
         };
         let c = plain.bilinear(1, &nalgebra::Point2::new(21.0, 9.5));
         assert!(c[0] > grey + 0.1 && c[1] < grey - 0.1, "{c:?}");
+    }
+
+    /// Levels built in the buffers another photograph's levels left behind are the same bits
+    /// as levels built in fresh ones, with a mask and without.
+    #[test]
+    fn mip_levels_in_spare_buffers_are_the_same_as_fresh_ones() {
+        let (w, h) = (45u32, 30u32);
+        let photo = |seed: u32| {
+            PhotoPixels::Rgb8(image::RgbImage::from_fn(w, h, |x, y| {
+                let v = (x * 7 + y * 13 + seed * 31) % 251;
+                image::Rgb([v as u8, (v * 3 % 256) as u8, (255 - v) as u8])
+            }))
+        };
+        let mask = image::GrayImage::from_fn(w, h, |x, y| {
+            image::Luma([if (x + 2 * y) % 5 < 3 { 255 } else { 0 }])
+        });
+        let (a, b) = (photo(1), photo(2));
+        for m in [Some(&mask), None] {
+            let fresh = sampler::PhotoPyramid::levels_of(&a, m, 8, &Default::default());
+            let spare = SpareLevels::default();
+            spare.keep(sampler::PhotoPyramid::levels_of(
+                &b,
+                m,
+                8,
+                &Default::default(),
+            ));
+            let reused = sampler::PhotoPyramid::levels_of(&a, m, 8, &spare);
+            let bits = |l: &sampler::MipLevels| -> Vec<Vec<u32>> {
+                let (colour, cover) = l.parts();
+                colour
+                    .iter()
+                    .map(|c| c.as_raw().iter().map(|v| v.to_bits()).collect())
+                    .chain(
+                        cover
+                            .iter()
+                            .map(|c| c.iter().map(|v| v.to_bits()).collect()),
+                    )
+                    .collect()
+            };
+            assert_eq!(bits(&fresh).len(), if m.is_some() { 8 } else { 4 });
+            assert_eq!(bits(&fresh), bits(&reused));
+            assert_ne!(
+                bits(&fresh),
+                bits(&sampler::PhotoPyramid::levels_of(&b, m, 8, &spare))
+            );
+        }
     }
 
     /// A strip of 2n triangles over vertices 0..2n+2 (two rows).

@@ -36,6 +36,80 @@ pub struct MipLevels {
     cover: Vec<Vec<f32>>,
 }
 
+/// Buffers of mip levels that a photograph no longer needs, for the next photograph's levels
+/// of the same size. A level of a 12 MP photograph is tens of megabytes: allocated afresh
+/// for each photograph, it came from new pages of memory each time (the allocator unmaps a
+/// worker thread's block when it is freed), and their first writes were 2% of the 1.5M-face
+/// scene's time. Every value of a reused buffer is written before it is read.
+pub struct SpareLevels(std::sync::Mutex<(Vec<Vec<f32>>, usize)>);
+
+impl Default for SpareLevels {
+    /// Keeps every photograph's levels that it is given.
+    fn default() -> Self {
+        SpareLevels(std::sync::Mutex::new((Vec::new(), usize::MAX)))
+    }
+}
+
+impl SpareLevels {
+    /// At most this many buffers are kept (two photographs' levels and coverage).
+    const KEEP: usize = 32;
+
+    /// For a loop over `photos` photographs that builds each one's levels while the one
+    /// before it is sampled ([`crate::photos::for_each_photo_with`]): the levels of the
+    /// photograph sampled `k`-th go to the one `k + 2`-th, so the last two photographs' are
+    /// freed, not kept (they would only add to the loop's peak).
+    pub fn for_loop(photos: usize) -> Self {
+        SpareLevels(std::sync::Mutex::new((
+            Vec::new(),
+            photos.saturating_sub(2),
+        )))
+    }
+
+    /// A buffer of `len` values, reused if one of that length is spare (its old values
+    /// still in it), zeroed otherwise.
+    fn take(&self, len: usize) -> Vec<f32> {
+        let mut spare = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        match spare.0.iter().position(|b| b.len() == len) {
+            Some(k) => spare.0.swap_remove(k),
+            None => vec![0f32; len],
+        }
+    }
+
+    /// Keeps the mip levels of a photograph that has been sampled, if a later one can use
+    /// them.
+    pub fn give(&self, ph: PhotoSampler) {
+        self.keep(ph.pyramid.levels);
+    }
+
+    /// Keeps `levels`' buffers, if a later photograph can use them.
+    pub(super) fn keep(&self, levels: MipLevels) {
+        let mut spare = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        let (bufs, useful) = &mut *spare;
+        if *useful == 0 {
+            return;
+        }
+        *useful -= 1;
+        for b in levels
+            .colour
+            .into_iter()
+            .map(Rgb32FImage::into_raw)
+            .chain(levels.cover)
+        {
+            if bufs.len() < Self::KEEP {
+                bufs.push(b);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+impl MipLevels {
+    /// The colour levels and the coverage levels.
+    pub(super) fn parts(&self) -> (&[Rgb32FImage], &[Vec<f32>]) {
+        (&self.colour, &self.cover)
+    }
+}
+
 /// The first level below a masked base: colour times coverage, and coverage (object pixels
 /// are those of mask value 128 and above).
 fn half_size_masked<V: Values + ?Sized>(
@@ -43,10 +117,11 @@ fn half_size_masked<V: Values + ?Sized>(
     mask: &[u8],
     w: u32,
     h: u32,
+    spare: &SpareLevels,
 ) -> (Rgb32FImage, Vec<f32>) {
     let (nw, nh) = (w / 2, h / 2);
-    let mut buf = vec![0f32; (nw * nh * 3) as usize];
-    let mut cover = vec![0f32; (nw * nh) as usize];
+    let mut buf = spare.take((nw * nh * 3) as usize);
+    let mut cover = spare.take((nw * nh) as usize);
     let (w, stride) = (w as usize, 3 * w as usize);
     buf.par_chunks_mut((nw * 3) as usize)
         .zip(cover.par_chunks_mut(nw as usize))
@@ -62,15 +137,18 @@ fn half_size_masked<V: Values + ?Sized>(
                     (m1 + 2 * x + 1, r1 + 6 * x + 3),
                 ];
                 let mut n = 0u32;
+                let mut sum = [0f32; 3];
                 for (mi, ri) in taps {
                     if mask[mi] >= 128 {
                         n += 1;
-                        for (k, v) in o.iter_mut().enumerate() {
+                        for (k, v) in sum.iter_mut().enumerate() {
                             *v += raw.value(ri + k);
                         }
                     }
                 }
-                o.iter_mut().for_each(|v| *v *= 0.25);
+                for (v, s) in o.iter_mut().zip(sum) {
+                    *v = s * 0.25;
+                }
                 *c = 0.25 * n as f32;
             }
         });
@@ -81,9 +159,14 @@ fn half_size_masked<V: Values + ?Sized>(
 }
 
 /// One 2x2 box-filter reduction of the `w` x `h` values `raw` of `C` channels.
-fn half_size_n<const C: usize, V: Values + ?Sized>(raw: &V, w: u32, h: u32) -> Vec<f32> {
+fn half_size_n<const C: usize, V: Values + ?Sized>(
+    raw: &V,
+    w: u32,
+    h: u32,
+    spare: &SpareLevels,
+) -> Vec<f32> {
     let (nw, nh) = (w as usize / 2, h as usize / 2);
-    let mut buf = vec![0f32; nw * nh * C];
+    let mut buf = spare.take(nw * nh * C);
     let stride = C * w as usize;
     buf.par_chunks_mut((nw * C).max(1))
         .enumerate()
@@ -104,8 +187,14 @@ fn half_size_n<const C: usize, V: Values + ?Sized>(raw: &V, w: u32, h: u32) -> V
 }
 
 /// One 2x2 box-filter reduction of the `w` x `h` RGB values `raw`.
-pub(super) fn half_size<V: Values + ?Sized>(raw: &V, w: u32, h: u32) -> Rgb32FImage {
-    Rgb32FImage::from_raw(w / 2, h / 2, half_size_n::<3, V>(raw, w, h)).expect("sized nw*nh*3")
+pub(super) fn half_size<V: Values + ?Sized>(
+    raw: &V,
+    w: u32,
+    h: u32,
+    spare: &SpareLevels,
+) -> Rgb32FImage {
+    Rgb32FImage::from_raw(w / 2, h / 2, half_size_n::<3, V>(raw, w, h, spare))
+        .expect("sized nw*nh*3")
 }
 
 /// Bilinear sample at pixel coordinate (`x`, `y`) (pixel units, centres at integers) of the
@@ -142,11 +231,13 @@ pub(super) fn bilinear_in<V: Values + ?Sized>(raw: &V, w: u32, h: u32, x: f64, y
 }
 
 impl<'a> PhotoPyramid<'a> {
-    /// The levels below `base`, at most `levels`, weighted by `mask` if there is one.
+    /// The levels below `base`, at most `levels`, weighted by `mask` if there is one, in
+    /// `spare` buffers where there are some.
     pub(super) fn levels_of(
         base: &PhotoPixels,
         mask: Option<&GrayImage>,
         levels: usize,
+        spare: &SpareLevels,
     ) -> MipLevels {
         let mask = mask.filter(|m| m.dimensions() == base.dimensions());
         let mut out = MipLevels::default();
@@ -161,24 +252,28 @@ impl<'a> PhotoPyramid<'a> {
             let next = match out.colour.last() {
                 Some(prev) => {
                     if let Some(c) = out.cover.last() {
-                        let c = half_size_n::<1, [f32]>(c.as_slice(), w, h);
+                        let c = half_size_n::<1, [f32]>(c.as_slice(), w, h, spare);
                         out.cover.push(c);
                     }
-                    half_size(prev.as_raw().as_slice(), w, h)
+                    half_size(prev.as_raw().as_slice(), w, h, spare)
                 }
                 None => match (base, mask) {
                     (PhotoPixels::Rgb8(img), Some(m)) => {
-                        let (c, cover) = half_size_masked(img.as_raw().as_slice(), m, w, h);
+                        let (c, cover) = half_size_masked(img.as_raw().as_slice(), m, w, h, spare);
                         out.cover.push(cover);
                         c
                     }
                     (PhotoPixels::Rgb32F(img), Some(m)) => {
-                        let (c, cover) = half_size_masked(img.as_raw().as_slice(), m, w, h);
+                        let (c, cover) = half_size_masked(img.as_raw().as_slice(), m, w, h, spare);
                         out.cover.push(cover);
                         c
                     }
-                    (PhotoPixels::Rgb8(img), None) => half_size(img.as_raw().as_slice(), w, h),
-                    (PhotoPixels::Rgb32F(img), None) => half_size(img.as_raw().as_slice(), w, h),
+                    (PhotoPixels::Rgb8(img), None) => {
+                        half_size(img.as_raw().as_slice(), w, h, spare)
+                    }
+                    (PhotoPixels::Rgb32F(img), None) => {
+                        half_size(img.as_raw().as_slice(), w, h, spare)
+                    }
                 },
             };
             out.colour.push(next);
@@ -502,13 +597,14 @@ impl<'a> Sampler<'a> {
     /// The part of getting photograph `pi` (decoded as `rgb`, with its `mask`) ready to
     /// sample that takes time: its projected vertices, depth map, mip levels, mask taps and
     /// the faces that sample it, owned, so that it can run beside the work on the previous
-    /// photograph.
+    /// photograph. The mip levels reuse `spare` buffers of photographs already sampled.
     pub fn photo_setup(
         &self,
         photos: &[Photo],
         pi: usize,
         rgb: &PhotoPixels,
         mask: Option<&GrayImage>,
+        spare: &SpareLevels,
     ) -> PhotoSetup {
         let view = &photos[pi].view;
         let t = std::time::Instant::now();
@@ -517,7 +613,7 @@ impl<'a> Sampler<'a> {
             let res = self.binding.options.depth_resolution;
             DepthMap::render_projected(self.mesh, view, &projected, res).eroded(1)
         });
-        let levels = PhotoPyramid::levels_of(rgb, mask, if self.robust { 8 } else { 0 });
+        let levels = PhotoPyramid::levels_of(rgb, mask, if self.robust { 8 } else { 0 }, spare);
         // One test per face here instead of a search per face and chart in the loops.
         let photo = pi as u32;
         let sampled = (0..self.mesh.num_faces())
