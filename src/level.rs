@@ -221,7 +221,7 @@ pub fn level_seams(
         .collect());
     // Each entry's sample and coefficient side by side, so that the gather below reads one
     // list and the samples' residuals instead of the samples themselves (48 bytes each, in
-    // no order near the unknown's: on the 1.5M-face scene most of the solve's time).
+    // no order near the unknown's: on the 1.5M-face scene about half of the solve's time).
     let touch: Vec<(u32, f64)> = touch
         .iter()
         .map(|&t| {
