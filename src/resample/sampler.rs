@@ -39,7 +39,7 @@ pub struct MipLevels {
 /// Buffers of mip levels that a photograph no longer needs, for the next photograph's levels
 /// of the same size. A level of a 12 MP photograph is tens of megabytes: allocated afresh
 /// for each photograph, it came from new pages of memory each time (the allocator unmaps a
-/// worker thread's block when it is freed), and their first writes were 2% of the 1.5M-face
+/// worker thread's block when it is freed), and their first writes were 1% of the 1.5M-face
 /// scene's time. Every value of a reused buffer is written before it is read.
 pub struct SpareLevels(std::sync::Mutex<(Vec<Vec<f32>>, usize)>);
 
