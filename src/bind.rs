@@ -528,11 +528,19 @@ pub fn bind(
     let mut per_photo = Vec::with_capacity(photos.len());
     // Each photograph's projected vertices, for its depth map and its vertex tests.
     let mut projected = Vec::new();
+    // The depth maps' buffers, from one photograph to the next.
+    let mut spare_depth = Vec::new();
     progress.start("binding", photos.len() as u64);
     for_each_photo(photos, progress, |pi, rgb, mask| {
         let view = &photos[pi].view;
         project_vertices_into(mesh, view, &mut projected);
-        let depth = DepthMap::render_projected(mesh, view, &projected, opts.depth_resolution);
+        let depth = DepthMap::render_projected_reusing(
+            mesh,
+            view,
+            &projected,
+            opts.depth_resolution,
+            &mut spare_depth,
+        );
         let background = match (mask, opts.background) {
             (Some(_), _) | (None, Background::Off) => None,
             (None, Background::Color(c)) => Some(c),
@@ -666,6 +674,7 @@ pub fn bind(
         }
         rejections.add(&rej);
         rejections.kept -= evicted_total;
+        spare_depth.push(depth.z);
         Ok(())
     })?;
     progress.finish();

@@ -41,6 +41,21 @@ impl DepthMap {
         projected: &[Option<[f64; 3]>],
         max_side: u32,
     ) -> Self {
+        Self::render_projected_reusing(mesh, view, projected, max_side, &mut Vec::new())
+    }
+
+    /// [`DepthMap::render_projected`] in buffers from `spare` where one has the map's size
+    /// (the z-buffers of the faces' parts but the first go back to `spare`; so can the map's
+    /// own, [`DepthMap::z`], once it is no longer needed). A loop over photographs that
+    /// renders each one's map in fresh memory faults every page of it in again (151k of the
+    /// 1.5M-face scene's 2.5M page faults were binding's maps); the same bytes either way.
+    pub fn render_projected_reusing(
+        mesh: &Mesh,
+        view: &PosedCamera,
+        projected: &[Option<[f64; 3]>],
+        max_side: u32,
+        spare: &mut Vec<Vec<f32>>,
+    ) -> Self {
         let (pw, ph) = (view.camera.width, view.camera.height);
         let scale = (max_side as f64 / pw.max(ph) as f64).min(1.0);
         let w = ((pw as f64 * scale).round() as u32).max(1);
@@ -71,10 +86,24 @@ impl DepthMap {
             .clamp(1, MAX_PARTS)
             .min(nf.max(1));
         let per = nf.div_ceil(parts).max(1);
-        let mut buffers: Vec<Vec<f32>> = (0..parts)
+        let len = w_us * h as usize;
+        let given: Vec<Option<Vec<f32>>> = (0..parts)
+            .map(|_| {
+                let k = spare.iter().position(|b| b.len() == len)?;
+                Some(spare.swap_remove(k))
+            })
+            .collect();
+        let mut buffers: Vec<Vec<f32>> = given
             .into_par_iter()
-            .map(|k| {
-                let mut z = vec![f32::INFINITY; w_us * h as usize];
+            .enumerate()
+            .map(|(k, reused)| {
+                let mut z = match reused {
+                    Some(mut z) => {
+                        z.fill(f32::INFINITY);
+                        z
+                    }
+                    None => vec![f32::INFINITY; len],
+                };
                 for f in k * per..((k + 1) * per).min(nf) {
                     if let Some((t, r0, r1)) = corners(f) {
                         raster_depth(&t, r0, r1, w_us, |x, y, d| {
@@ -100,6 +129,7 @@ impl DepthMap {
                 }
             });
         }
+        spare.extend(buffers);
         DepthMap {
             width: w,
             height: h,
@@ -328,6 +358,25 @@ mod tests {
         assert_eq!(d.eroded(2).at(&Point2::new(101.5, 50.5)), 2.0);
         assert_window_minimum(&d, 2);
         assert!((focal_px(&view) - 50.0).abs() < 1e-6);
+        // Rendered in buffers holding another map's depths (and one of another size), the
+        // map is the same; the parts' buffers but the first go back.
+        let mut spare = vec![
+            vec![0.5f32; 200 * 100],
+            vec![0.25f32; 7],
+            vec![1.5f32; 200 * 100],
+        ];
+        let r = DepthMap::render_projected_reusing(
+            &m,
+            &view,
+            &project_vertices(&m, &view),
+            1000,
+            &mut spare,
+        );
+        assert_eq!(r.z, d.z);
+        let parts = rayon::current_num_threads()
+            .clamp(1, MAX_PARTS)
+            .min(m.num_faces());
+        assert_eq!(spare.len(), 3 - parts.min(2) + (parts - 1));
     }
 
     /// `d.eroded(r)` against the minimum over each (2r+1)^2 window, brute force.
