@@ -675,6 +675,10 @@ pub fn bind(
         rejections.add(&rej);
         rejections.kept -= evicted_total;
         spare_depth.push(depth.z);
+        // The newest only (a render takes at most MAX_PARTS): maps of photographs of other
+        // sizes would otherwise pile up.
+        let excess = spare_depth.len().saturating_sub(crate::depth::MAX_PARTS);
+        spare_depth.drain(..excess);
         Ok(())
     })?;
     progress.finish();

@@ -25,7 +25,7 @@ pub struct DepthMap {
 
 /// At most this many z-buffers are rasterised at once (one per part of the faces), then merged
 /// by their minimum: bounded memory however many threads there are.
-const MAX_PARTS: usize = 8;
+pub const MAX_PARTS: usize = 8;
 
 impl DepthMap {
     /// Renders the depth of `mesh` seen by `view`, at most `max_side` pixels on the longer side.

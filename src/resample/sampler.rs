@@ -51,7 +51,8 @@ impl Default for SpareLevels {
 }
 
 impl SpareLevels {
-    /// At most this many buffers are kept (two photographs' levels and coverage).
+    /// At most this many buffers are kept (two photographs' levels and coverage), the
+    /// newest: photographs of several sizes leave buffers no later one may fit.
     const KEEP: usize = 32;
 
     /// For a loop over `photos` photographs that builds each one's levels while the one
@@ -89,16 +90,15 @@ impl SpareLevels {
             return;
         }
         *useful -= 1;
-        for b in levels
-            .colour
-            .into_iter()
-            .map(Rgb32FImage::into_raw)
-            .chain(levels.cover)
-        {
-            if bufs.len() < Self::KEEP {
-                bufs.push(b);
-            }
-        }
+        bufs.extend(
+            levels
+                .colour
+                .into_iter()
+                .map(Rgb32FImage::into_raw)
+                .chain(levels.cover),
+        );
+        let excess = bufs.len().saturating_sub(Self::KEEP);
+        bufs.drain(..excess);
     }
 }
 
