@@ -528,8 +528,9 @@ pub fn bind(
     let mut per_photo = Vec::with_capacity(photos.len());
     // Each photograph's projected vertices, for its depth map and its vertex tests.
     let mut projected = Vec::new();
-    // The depth maps' buffers, from one photograph to the next.
-    let mut spare_depth = Vec::new();
+    // The depth maps' buffers, from one photograph to the next (a render takes at most
+    // MAX_PARTS).
+    let mut spare_depth = crate::memory::SpareBuffers::new(crate::depth::MAX_PARTS);
     progress.start("binding", photos.len() as u64);
     for_each_photo(photos, progress, |pi, rgb, mask| {
         let view = &photos[pi].view;
@@ -674,11 +675,7 @@ pub fn bind(
         }
         rejections.add(&rej);
         rejections.kept -= evicted_total;
-        spare_depth.push(depth.z);
-        // The newest only (a render takes at most MAX_PARTS): maps of photographs of other
-        // sizes would otherwise pile up.
-        let excess = spare_depth.len().saturating_sub(crate::depth::MAX_PARTS);
-        spare_depth.drain(..excess);
+        spare_depth.put([depth.z]);
         Ok(())
     })?;
     progress.finish();

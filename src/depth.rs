@@ -4,6 +4,7 @@
 //! per-texel occlusion (`docs/decisions.md`, "Binding and resampling").
 
 use crate::camera::PosedCamera;
+use crate::memory::SpareBuffers;
 use crate::mesh::Mesh;
 use nalgebra::{Point2, Vector3};
 use rayon::prelude::*;
@@ -41,7 +42,8 @@ impl DepthMap {
         projected: &[Option<[f64; 3]>],
         max_side: u32,
     ) -> Self {
-        Self::render_projected_reusing(mesh, view, projected, max_side, &mut Vec::new())
+        let mut none = SpareBuffers::new(0);
+        Self::render_projected_reusing(mesh, view, projected, max_side, &mut none)
     }
 
     /// [`DepthMap::render_projected`] in buffers from `spare` where one has the map's size
@@ -54,7 +56,7 @@ impl DepthMap {
         view: &PosedCamera,
         projected: &[Option<[f64; 3]>],
         max_side: u32,
-        spare: &mut Vec<Vec<f32>>,
+        spare: &mut SpareBuffers,
     ) -> Self {
         let (pw, ph) = (view.camera.width, view.camera.height);
         let scale = (max_side as f64 / pw.max(ph) as f64).min(1.0);
@@ -87,12 +89,7 @@ impl DepthMap {
             .min(nf.max(1));
         let per = nf.div_ceil(parts).max(1);
         let len = w_us * h as usize;
-        let given: Vec<Option<Vec<f32>>> = (0..parts)
-            .map(|_| {
-                let k = spare.iter().position(|b| b.len() == len)?;
-                Some(spare.swap_remove(k))
-            })
-            .collect();
+        let given: Vec<Option<Vec<f32>>> = (0..parts).map(|_| spare.take(len)).collect();
         let mut buffers: Vec<Vec<f32>> = given
             .into_par_iter()
             .enumerate()
@@ -129,7 +126,7 @@ impl DepthMap {
                 }
             });
         }
-        spare.extend(buffers);
+        spare.put(buffers);
         DepthMap {
             width: w,
             height: h,
@@ -360,11 +357,12 @@ mod tests {
         assert!((focal_px(&view) - 50.0).abs() < 1e-6);
         // Rendered in buffers holding another map's depths (and one of another size), the
         // map is the same; the parts' buffers but the first go back.
-        let mut spare = vec![
+        let mut spare = SpareBuffers::new(8);
+        spare.put([
             vec![0.5f32; 200 * 100],
             vec![0.25f32; 7],
             vec![1.5f32; 200 * 100],
-        ];
+        ]);
         let r = DepthMap::render_projected_reusing(
             &m,
             &view,

@@ -256,9 +256,71 @@ pub fn human(b: u64) -> String {
     }
 }
 
+/// Buffers of `f32` that one photograph's work freed, for the next photograph's buffers of
+/// the same length (depth maps, mip levels). A loop over photographs that allocates them
+/// afresh maps new memory each time, and every page of it faults in again on its first write
+/// (`docs/decisions.md`, "Page faults in the photo loops"). Holds the newest `cap` buffers
+/// at most, so that photographs of several sizes cannot pile up buffers nothing fits.
+#[derive(Debug, Default)]
+pub struct SpareBuffers {
+    bufs: Vec<Vec<f32>>,
+    cap: usize,
+}
+
+impl SpareBuffers {
+    /// Keeps at most `cap` buffers (0: none).
+    pub fn new(cap: usize) -> Self {
+        SpareBuffers {
+            bufs: Vec::new(),
+            cap,
+        }
+    }
+
+    /// A spare buffer of exactly `len` values, its old values still in it, if there is one.
+    pub fn take(&mut self, len: usize) -> Option<Vec<f32>> {
+        let k = self.bufs.iter().position(|b| b.len() == len)?;
+        Some(self.bufs.swap_remove(k))
+    }
+
+    /// Keeps `bufs`, dropping the oldest beyond the cap.
+    pub fn put(&mut self, bufs: impl IntoIterator<Item = Vec<f32>>) {
+        self.bufs.extend(bufs);
+        let excess = self.bufs.len().saturating_sub(self.cap);
+        self.bufs.drain(..excess);
+    }
+
+    /// Buffers held.
+    pub fn len(&self) -> usize {
+        self.bufs.len()
+    }
+
+    /// Whether no buffer is held.
+    pub fn is_empty(&self) -> bool {
+        self.bufs.is_empty()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A buffer comes back only at its exact length, and beyond the cap the oldest go.
+    #[test]
+    fn spare_buffers_match_lengths_and_keep_the_newest() {
+        let mut s = SpareBuffers::new(2);
+        s.put([vec![1.0; 3], vec![2.0; 4]]);
+        assert_eq!(s.take(5), None);
+        s.put([vec![3.0; 3]]);
+        assert_eq!(s.len(), 2);
+        // The oldest (1.0, length 3) went; the newest of length 3 is 3.0.
+        assert_eq!(s.take(3), Some(vec![3.0; 3]));
+        assert_eq!(s.take(3), None);
+        assert_eq!(s.take(4), Some(vec![2.0; 4]));
+        assert!(s.is_empty());
+        let mut none = SpareBuffers::new(0);
+        none.put([vec![0.0; 3]]);
+        assert!(none.is_empty());
+    }
 
     #[test]
     fn limits_parse_as_shares_sizes_and_off() {

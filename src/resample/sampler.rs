@@ -3,6 +3,7 @@
 //! vertices, depth map, mip pyramid) and the per-texel sampling through per-face affine maps.
 
 use super::*;
+use crate::memory::SpareBuffers;
 
 /// Clamps barycentrics to the triangle (texels just outside it, owned conservatively).
 pub(super) fn clamp_bary(b: [f64; 3]) -> [f64; 3] {
@@ -41,12 +42,15 @@ pub struct MipLevels {
 /// for each photograph, it came from new pages of memory each time (the allocator unmaps a
 /// worker thread's block when it is freed), and their first writes were 1% of the 1.5M-face
 /// scene's time. Every value of a reused buffer is written before it is read.
-pub struct SpareLevels(std::sync::Mutex<(Vec<Vec<f32>>, usize)>);
+pub struct SpareLevels(std::sync::Mutex<(SpareBuffers, usize)>);
 
 impl Default for SpareLevels {
-    /// Keeps every photograph's levels that it is given.
+    /// Keeps every photograph's levels that it is given (up to the cap).
     fn default() -> Self {
-        SpareLevels(std::sync::Mutex::new((Vec::new(), usize::MAX)))
+        SpareLevels(std::sync::Mutex::new((
+            SpareBuffers::new(Self::KEEP),
+            usize::MAX,
+        )))
     }
 }
 
@@ -61,7 +65,7 @@ impl SpareLevels {
     /// freed, not kept (they would only add to the loop's peak).
     pub fn for_loop(photos: usize) -> Self {
         SpareLevels(std::sync::Mutex::new((
-            Vec::new(),
+            SpareBuffers::new(Self::KEEP),
             photos.saturating_sub(2),
         )))
     }
@@ -70,10 +74,7 @@ impl SpareLevels {
     /// still in it), zeroed otherwise.
     fn take(&self, len: usize) -> Vec<f32> {
         let mut spare = self.0.lock().unwrap_or_else(|e| e.into_inner());
-        match spare.0.iter().position(|b| b.len() == len) {
-            Some(k) => spare.0.swap_remove(k),
-            None => vec![0f32; len],
-        }
+        spare.0.take(len).unwrap_or_else(|| vec![0f32; len])
     }
 
     /// Keeps the mip levels of a photograph that has been sampled, if a later one can use
@@ -90,15 +91,13 @@ impl SpareLevels {
             return;
         }
         *useful -= 1;
-        bufs.extend(
+        bufs.put(
             levels
                 .colour
                 .into_iter()
                 .map(Rgb32FImage::into_raw)
                 .chain(levels.cover),
         );
-        let excess = bufs.len().saturating_sub(Self::KEEP);
-        bufs.drain(..excess);
     }
 }
 
