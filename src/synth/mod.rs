@@ -21,6 +21,7 @@ use crate::resample::Resampled;
 use crate::restore::{Handover, Unrestored};
 use crate::rng::SplitMix64;
 use nalgebra::Vector3;
+use rayon::prelude::*;
 use serde::Serialize;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -326,6 +327,12 @@ fn detail(texels: &[[f32; 3]], w: usize, h: usize, sigma: f64) -> Vec<[f32; 3]> 
         .collect()
 }
 
+/// The random numbers of region `k`'s patches: its own stream, drawn from a seed that mixes
+/// the option's seed with `k`, so that regions can grow side by side.
+fn region_rng(seed: u64, k: usize) -> SplitMix64 {
+    SplitMix64::new(SplitMix64::new(seed.wrapping_add(k as u64)).next_u64())
+}
+
 /// Stage 6: fills the unseen texels of every region in `left` (low band plus exemplar
 /// detail), then extends the charts into the gutter again. `photos` are the registered
 /// photographs, indexed as `res.best_photo` (how sharply each crop was seen decides which can
@@ -549,37 +556,60 @@ pub fn synthesize(
         .map(|s| plane::max_radius(&s.ex))
         .fold(radius, f64::min);
     report.radius = radius;
-    let mut rng = SplitMix64::new(opts.seed);
-    let mut patches = Vec::new();
+    // Regions grow their patches side by side, each from its own seed (the option's mixed
+    // with the region's number), so the layout is the same on any thread count. A region's
+    // faces hold consecutive slots, so each region owns one run of `face_patches`, and its
+    // patches are numbered from 0 until they are joined below.
     let mut face_patches: Vec<Vec<u32>> = vec![Vec::new(); count as usize];
-    let mut per_region = Vec::with_capacity(left.regions.len());
-    for ((r, (_, src)), rim) in left.regions.iter().zip(&used).zip(&rims) {
-        let grown = match src {
-            Some(id) => {
-                let s = &sources[*id as usize];
-                let layout = Layout {
-                    radius,
-                    candidates: opts.candidates,
-                };
-                let rim = rim_detail(mesh, atlas, res, rim, &low, s);
-                surface::grow_patches(
-                    mesh,
-                    adj,
-                    &r.faces,
-                    &slot,
-                    s,
-                    *id,
-                    &up,
-                    &layout,
-                    &mut rng,
-                    &rim,
-                    &mut patches,
-                    &mut face_patches,
-                )
-            }
-            None => 0,
+    let grown: Vec<Vec<surface::Patch>> = {
+        let mut runs: Vec<&mut [Vec<u32>]> = Vec::with_capacity(left.regions.len());
+        let mut rest = &mut face_patches[..];
+        for r in &left.regions {
+            let (run, tail) = rest.split_at_mut(r.faces.len());
+            runs.push(run);
+            rest = tail;
+        }
+        let res: &Resampled = res;
+        let layout = Layout {
+            radius,
+            candidates: opts.candidates,
         };
-        per_region.push(grown);
+        left.regions
+            .par_iter()
+            .zip(&used)
+            .zip(&rims)
+            .zip(runs)
+            .enumerate()
+            .with_max_len(1)
+            .map(|(k, (((r, (_, src)), rim), run))| {
+                let Some(id) = src else {
+                    return Vec::new();
+                };
+                let s = &sources[*id as usize];
+                let rim = rim_detail(mesh, atlas, res, rim, &low, s);
+                let mut rng = region_rng(opts.seed, k);
+                let mut grown = Vec::new();
+                surface::grow_patches(
+                    mesh, adj, &r.faces, &slot, s, *id, &up, &layout, &mut rng, &rim, &mut grown,
+                    run,
+                );
+                grown
+            })
+            .collect()
+    };
+    // Patch numbers become the page's: a region's follow those of the regions before it.
+    let mut patches = Vec::new();
+    let mut per_region = Vec::with_capacity(grown.len());
+    let mut rest = &mut face_patches[..];
+    for (r, g) in left.regions.iter().zip(grown) {
+        let (run, tail) = rest.split_at_mut(r.faces.len());
+        rest = tail;
+        let offset = patches.len() as u32;
+        for k in run.iter_mut().flatten() {
+            *k += offset;
+        }
+        per_region.push(g.len());
+        patches.extend(g);
     }
     report.seconds_patches = t.elapsed().as_secs_f64();
     t = Instant::now();

@@ -594,7 +594,8 @@ pub(super) fn point_triangle(p: &Point3<f64>, t: &[Point3<f64>; 3]) -> f64 {
 /// over the faces (corners, centroids, and a grid on faces larger than the patch core) are
 /// visited in a seeded random order, and each one no patch core covers yet seeds a patch,
 /// grown through neighbouring faces within reach of it that face the same way. Appends to
-/// `patches` and to each face's patch list (`face_patches`, indexed through `slot`).
+/// `patches` (numbered from its length) and to each face's patch list in `face_patches`,
+/// the region's own run of lists (a face's at its slot less the region's first slot).
 #[allow(clippy::too_many_arguments)]
 pub(super) fn grow_patches(
     mesh: &Mesh,
@@ -722,7 +723,7 @@ pub(super) fn grow_patches(
         let mut cons = Vec::new();
         let step = (members.len() / 48).max(1);
         for &f in members.iter().step_by(step) {
-            let list = &face_patches[slot[f as usize] as usize];
+            let list = &face_patches[local(f)];
             if list.is_empty() {
                 continue;
             }
@@ -769,7 +770,7 @@ pub(super) fn grow_patches(
         patch.offset = choose_offset(&src.ex, layout.radius, layout.candidates, rng, &cons);
         patches.push(patch);
         for &f in &members {
-            face_patches[slot[f as usize] as usize].push(id);
+            face_patches[local(f)].push(id);
             let l = local(f);
             for q in first[l]..first[l + 1] {
                 if (points[q].0 - origin).norm() <= core {
