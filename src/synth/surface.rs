@@ -411,8 +411,9 @@ fn median3(v: &mut [[f32; 3]]) -> [f32; 3] {
 /// read from one flat list of unknown indices. Every channel still does its own conjugate
 /// gradients, with its own step sizes and stopping test, the same operations in the same
 /// order as one channel at a time (`correction_per_channel`, the unit test's
-/// reference): the same bits. On the 1.5M-face scene this solve was most of stage 6's
-/// serial time (development log: `perf` stacks).
+/// reference): the same bits. On the 1.5M-face scene the low band took 2.2-2.6 s with one
+/// channel at a time and 1.35-1.41 s in lockstep (`docs/benchmarks.md`, "Stage 6's serial
+/// work").
 fn solve_correction(
     nbr: &[Vec<u32>],
     unknown: &[u32],
