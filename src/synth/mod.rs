@@ -561,14 +561,14 @@ pub fn synthesize(
     // faces hold consecutive slots, so each region owns one run of `face_patches`, and its
     // patches are numbered from 0 until they are joined below.
     let mut face_patches: Vec<Vec<u32>> = vec![Vec::new(); count as usize];
+    let mut runs: Vec<&mut [Vec<u32>]> = Vec::with_capacity(left.regions.len());
+    let mut rest = &mut face_patches[..];
+    for r in &left.regions {
+        let (run, tail) = rest.split_at_mut(r.faces.len());
+        runs.push(run);
+        rest = tail;
+    }
     let grown: Vec<Vec<surface::Patch>> = {
-        let mut runs: Vec<&mut [Vec<u32>]> = Vec::with_capacity(left.regions.len());
-        let mut rest = &mut face_patches[..];
-        for r in &left.regions {
-            let (run, tail) = rest.split_at_mut(r.faces.len());
-            runs.push(run);
-            rest = tail;
-        }
         let res: &Resampled = res;
         let layout = Layout {
             radius,
@@ -578,7 +578,7 @@ pub fn synthesize(
             .par_iter()
             .zip(&used)
             .zip(&rims)
-            .zip(runs)
+            .zip(runs.par_iter_mut())
             .enumerate()
             .with_max_len(1)
             .map(|(k, (((r, (_, src)), rim), run))| {
@@ -600,10 +600,7 @@ pub fn synthesize(
     // Patch numbers become the page's: a region's follow those of the regions before it.
     let mut patches = Vec::new();
     let mut per_region = Vec::with_capacity(grown.len());
-    let mut rest = &mut face_patches[..];
-    for (r, g) in left.regions.iter().zip(grown) {
-        let (run, tail) = rest.split_at_mut(r.faces.len());
-        rest = tail;
+    for (run, g) in runs.into_iter().zip(grown) {
         let offset = patches.len() as u32;
         for k in run.iter_mut().flatten() {
             *k += offset;
