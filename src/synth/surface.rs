@@ -771,8 +771,8 @@ pub(super) fn grow_patches(
         patch.offset = choose_offset(&src.ex, layout.radius, layout.candidates, rng, &cons);
         patches.push(patch);
         for &f in &members {
-            face_patches[local(f)].push(id);
             let l = local(f);
+            face_patches[l].push(id);
             for q in first[l]..first[l + 1] {
                 if (points[q].0 - origin).norm() <= core {
                     covered[q] = true;
