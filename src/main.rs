@@ -163,7 +163,8 @@ enum Command {
         #[arg(long, default_value_t = scantex::bind::BindOptions::default().weight_power, allow_negative_numbers = true, value_parser = number_in(scantex::bind::WEIGHT_POWER_RANGE))]
         weight_power: f64,
         /// Per-photograph gains solved from overlaps: off, exposure (gain per channel),
-        /// lighting (also shading by surface normal) or auto (whichever, with whichever
+        /// lighting (also smooth shading by surface normal), directional (also one distant
+        /// light plus ambient: a lamp or the sun) or auto (whichever, with whichever
         /// --delight, best predicts each photograph from the others; report.json gives every
         /// candidate's score). Default: auto, off with --method paper.
         #[arg(long)]

@@ -301,6 +301,7 @@ fn auto_gains_pick_what_predicts_the_photographs_on_the_painted_jar() {
         (GainModel::Lighting, Delight::Off),
         (GainModel::Lighting, Delight::Steps),
         (GainModel::Exposure, Delight::Steps),
+        (GainModel::Directional, Delight::Steps),
     ] {
         let mut opts = sized(1024);
         opts.photometric.model = model;
@@ -308,7 +309,7 @@ fn auto_gains_pick_what_predicts_the_photographs_on_the_painted_jar() {
         let out = dir.path().join(format!("{model}_{delight}"));
         let rep = texture_to(&scene, &opts, &out);
         if model == GainModel::Auto {
-            assert_eq!(rep.gains.candidates.len(), 9, "{:?}", rep.gains.candidates);
+            assert_eq!(rep.gains.candidates.len(), 12, "{:?}", rep.gains.candidates);
             assert_ne!(rep.gains.model, GainModel::Auto);
             assert_ne!(rep.gains.delight, Delight::Auto);
         } else {
