@@ -545,16 +545,6 @@ fn solve_capped(
             g
         })
         .collect();
-    // The photographs tell light from albedo only where their lights differ: a texture that
-    // kept the shading then needs a light per photograph to predict it. Where they share one
-    // light (the undelit texture predicts them with no light of their own), every texture
-    // predicts as well as the light it kept, and the step prior decides instead.
-    let shared_light = opts.delight == Delight::Auto
-        && candidates
-            .iter()
-            .filter(|c| c.delight == Delight::Off)
-            .min_by(|a, b| a.score.total_cmp(&b.score))
-            .is_some_and(|c| c.light < SHARED_LIGHT);
     // The delighting is chosen among the models the scoring can referee: its light is the
     // directional model, so a candidate built from that model explains the photographs
     // whatever light its albedo kept. The per-photograph model then is the one whose own gains
@@ -563,6 +553,17 @@ fn solve_capped(
     let refereed: Vec<usize> = (0..candidates.len())
         .filter(|&i| !auto_model || candidates[i].model != GainModel::Directional)
         .collect();
+    // The photographs tell light from albedo only where their lights differ: a texture that
+    // kept the shading then needs a light per photograph to predict it. Where they share one
+    // light (the undelit texture predicts them with no light of their own), every texture
+    // predicts as well as the light it kept, and the step prior decides instead.
+    let shared_light = opts.delight == Delight::Auto
+        && refereed
+            .iter()
+            .map(|&i| &candidates[i])
+            .filter(|c| c.delight == Delight::Off)
+            .min_by(|a, b| a.score.total_cmp(&b.score))
+            .is_some_and(|c| c.light < SHARED_LIGHT);
     let mut sub: Vec<Candidate> = refereed.iter().map(|&i| candidates[i]).collect();
     let sub_losses: Vec<Vec<Option<f64>>> = refereed
         .iter()
