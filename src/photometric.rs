@@ -1199,6 +1199,39 @@ fn cell_loss(
     (loss, weight)
 }
 
+/// Per vertex of `fit`, its views' colours as `correct(photo, normal, colour)` makes them,
+/// summed per channel with the view weights, and the weights' sum (index 3); zero at other
+/// vertices. Each photograph takes its own share out to get the albedo from the others.
+fn albedo_sums(
+    binding: &Binding,
+    fit: &Rows,
+    normals: &[Vector3<f64>],
+    correct: impl Fn(usize, &Vector3<f64>, [f32; 3]) -> [f64; 3] + Sync,
+) -> Vec<[f64; 4]> {
+    let sums: Vec<[f64; 4]> = fit
+        .verts
+        .par_iter()
+        .map(|&v| {
+            let v = v as usize;
+            let mut s = [0f64; 4];
+            for o in binding.views(v) {
+                let w = o.weight.max(1e-6) as f64;
+                let c = correct(o.photo as usize, &normals[v], o.color);
+                for k in 0..3 {
+                    s[k] += w * c[k];
+                }
+                s[3] += w;
+            }
+            s
+        })
+        .collect();
+    let mut sum = vec![[0f64; 4]; normals.len()];
+    for (&v, s) in fit.verts.iter().zip(sums) {
+        sum[v as usize] = s;
+    }
+    sum
+}
+
 /// How badly a model's own per-photograph gains predict each photograph from the others: the
 /// albedo from the other photographs (corrected by their gains) times the photograph's own
 /// gain, against what it saw; Cauchy loss per channel averaged over cells, as
@@ -1212,25 +1245,11 @@ fn own_loss(
     cell_of: &[u64],
     per_photo: &[PhotoGain],
 ) -> f64 {
-    let nv = normals.len();
-    let correct = |i: usize, n: &Vector3<f64>, c: [f32; 3]| -> [f64; 3] {
-        let g = per_photo[i].at(n);
-        std::array::from_fn(|k| c[k] as f64 / (g[k] as f64).max(1e-3))
-    };
-    let mut sum = vec![[0f64; 4]; nv];
-    for &v in &fit.verts {
-        let v = v as usize;
-        let mut s = [0f64; 4];
-        for o in binding.views(v) {
-            let w = o.weight.max(1e-6) as f64;
-            let c = correct(o.photo as usize, &normals[v], o.color);
-            for k in 0..3 {
-                s[k] += w * c[k];
-            }
-            s[3] += w;
-        }
-        sum[v] = s;
-    }
+    let gain = |i: usize, n: &Vector3<f64>| per_photo[i].at(n).map(|g| (g as f64).max(1e-3));
+    let sum = albedo_sums(binding, fit, normals, |i, n, c| {
+        let g = gain(i, n);
+        std::array::from_fn(|k| c[k] as f64 / g[k])
+    });
     let ln = |x: f64| x.max(1.0 / 255.0).ln();
     let parts: Vec<(f64, f64)> = by_photo
         .par_iter()
@@ -1244,16 +1263,15 @@ fn own_loss(
                     let v = o.vertex as usize;
                     let n = normals[v];
                     let w = o.weight as f64;
-                    let c = correct(i, &n, o.color);
                     let s = &sum[v];
                     let rest = s[3] - w;
                     if rest <= 1e-9 * s[3] {
                         return None;
                     }
-                    let g = per_photo[i].at(&n);
+                    let g = gain(i, &n);
                     let e = std::array::from_fn(|k| {
-                        let alb = (s[k] - w * c[k]) / rest;
-                        ln(o.color[k] as f64) - ln(alb * (g[k] as f64).max(1e-3))
+                        let alb = (s[k] - w * (o.color[k] as f64 / g[k])) / rest;
+                        ln(o.color[k] as f64) - ln(alb * g[k])
                     });
                     Some((cell_of[v], e, w))
                 })
@@ -1288,29 +1306,9 @@ fn prediction_loss(
     cell_of: &[u64],
     gains: &Gains,
 ) -> (f64, f64, Vec<Option<f64>>) {
-    let nv = normals.len();
-    // Albedo sums per vertex over all photographs; each photograph takes its own share out.
-    let mut sum = vec![[0f64; 4]; nv];
-    let sums: Vec<[f64; 4]> = fit
-        .verts
-        .par_iter()
-        .map(|&v| {
-            let v = v as usize;
-            let mut s = [0f64; 4];
-            for o in binding.views(v) {
-                let w = o.weight.max(1e-6);
-                let c = gains.correct(o.photo as usize, &normals[v], o.color);
-                for k in 0..3 {
-                    s[k] += w as f64 * c[k] as f64;
-                }
-                s[3] += w as f64;
-            }
-            s
-        })
-        .collect();
-    for (&v, s) in fit.verts.iter().zip(sums) {
-        sum[v as usize] = s;
-    }
+    let sum = albedo_sums(binding, fit, normals, |i, n, c| {
+        gains.correct(i, n, c).map(|x| x as f64)
+    });
     let ln = |x: f64| x.max(1.0 / 255.0).ln();
     let per_photo: Vec<(f64, f64, f64)> = by_photo
         .par_iter()
