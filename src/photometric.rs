@@ -20,7 +20,7 @@
 //! [`GainModel::Auto`] and [`Delight::Auto`], [`solve`] tries every combination and keeps the
 //! one that best predicts each photograph from the others (docs/decisions.md, issue 26).
 
-use crate::bind::Binding;
+use crate::bind::{Binding, ViewSample};
 use crate::mesh::topology::one_rings;
 use crate::mesh::Mesh;
 use nalgebra::{SMatrix, SVector, Vector3};
@@ -137,13 +137,16 @@ pub struct Candidate {
     /// Delighting.
     pub delight: Delight,
     /// Robust mean loss of predicting each photograph from the others ([`solve`]); lower is
-    /// better.
-    pub score: f64,
+    /// better. None for the [`GainModel::Directional`] candidates under [`GainModel::Auto`]:
+    /// the prediction fits that same light, so it cannot referee them and is not run.
+    pub score: Option<f64>,
     /// Mean spread (standard deviation, log) over each photograph of the shading of the light
-    /// fitted to it in that prediction (0: the texture already holds the photographs' light).
-    pub light: f64,
+    /// fitted to it in that prediction (0: the texture already holds the photographs' light);
+    /// None where [`Candidate::score`] is.
+    pub light: Option<f64>,
     /// With [`Delight::Auto`]: how many standard errors better than the best
-    /// [`Delight::Steps`] candidate it predicted, photograph by photograph ([`CLEAR_Z`]).
+    /// [`Delight::Steps`] candidate it predicted, photograph by photograph ([`CLEAR_Z`]); 0
+    /// where not scored.
     pub z: f64,
     /// Robust mean loss of predicting each photograph from the others with the model's own
     /// gains ([`own_loss`]; the same for every delighting of a model); lower is better. With
@@ -474,6 +477,13 @@ fn solve_capped(
     } else {
         Vec::new()
     };
+    // The delighting is chosen among the models the scoring can referee: its light is the
+    // directional model, so a candidate built from that model explains the photographs
+    // whatever light its albedo kept (and is not scored). The per-photograph model then is
+    // the one whose own gains best predict each photograph from the others, which a common
+    // shading cannot sway.
+    let auto_model = models.len() > 1;
+    let refereed = |model: GainModel| !auto_model || model != GainModel::Directional;
     // The step fit's vertex pairs, found once for every gain model that needs them.
     let pairs = std::sync::OnceLock::new();
     // Every candidate is independent of the others: the models, and the delightings of each,
@@ -516,10 +526,12 @@ fn solve_capped(
                         rms_after,
                         max_gain: opts.max_gain,
                     };
-                    let (score, light, photo_losses) = if scored {
-                        prediction_loss(binding, &fit, &by_photo, normals, &cell_of, &gains)
+                    let (score, light, photo_losses) = if scored && refereed(model) {
+                        let (s, l, p) =
+                            prediction_loss(binding, &fit, &by_photo, normals, &cell_of, &gains);
+                        (Some(s), Some(l), p)
                     } else {
-                        (0.0, 0.0, Vec::new())
+                        (None, None, Vec::new())
                     };
                     let c = Candidate {
                         model,
@@ -545,13 +557,8 @@ fn solve_capped(
             g
         })
         .collect();
-    // The delighting is chosen among the models the scoring can referee: its light is the
-    // directional model, so a candidate built from that model explains the photographs
-    // whatever light its albedo kept. The per-photograph model then is the one whose own gains
-    // best predict each photograph from the others, which a common shading cannot sway.
-    let auto_model = models.len() > 1;
     let refereed: Vec<usize> = (0..candidates.len())
-        .filter(|&i| !auto_model || candidates[i].model != GainModel::Directional)
+        .filter(|&i| refereed(candidates[i].model))
         .collect();
     // The photographs tell light from albedo only where their lights differ: a texture that
     // kept the shading then needs a light per photograph to predict it. Where they share one
@@ -562,8 +569,8 @@ fn solve_capped(
             .iter()
             .map(|&i| &candidates[i])
             .filter(|c| c.delight == Delight::Off)
-            .min_by(|a, b| a.score.total_cmp(&b.score))
-            .is_some_and(|c| c.light < SHARED_LIGHT);
+            .min_by(|a, b| rank_score(a).total_cmp(&rank_score(b)))
+            .is_some_and(|c| c.light.is_some_and(|l| l < SHARED_LIGHT));
     let mut sub: Vec<Candidate> = refereed.iter().map(|&i| candidates[i]).collect();
     let sub_losses: Vec<Vec<Option<f64>>> = refereed
         .iter()
@@ -602,6 +609,11 @@ fn solve_capped(
     gains
 }
 
+/// A candidate's score for ranking; one not scored ranks last.
+fn rank_score(c: &Candidate) -> f64 {
+    c.score.unwrap_or(f64::INFINITY)
+}
+
 /// The candidate to use, given each one's per-photograph losses: the best score (among the
 /// [`Delight::Steps`] ones where the photographs share one light); with `auto` delighting,
 /// setting each candidate's `z` against the best steps candidate, another delighting only
@@ -616,7 +628,7 @@ fn choose(
     let best_of = |candidates: &[Candidate], f: &dyn Fn(&Candidate) -> bool| {
         (0..candidates.len())
             .filter(|&i| f(&candidates[i]))
-            .min_by(|&a, &b| candidates[a].score.total_cmp(&candidates[b].score))
+            .min_by(|&a, &b| rank_score(&candidates[a]).total_cmp(&rank_score(&candidates[b])))
     };
     let mut choice = best_of(candidates, &|c| {
         !shared_light || c.delight == Delight::Steps
@@ -720,27 +732,15 @@ impl Rows {
         max_gain: f32,
         out: &mut [[f32; 3]],
     ) {
-        let clamp = |g: f32| g.clamp(1.0 / max_gain, max_gain);
         let values: Vec<Option<[f32; 3]>> = self
             .verts
             .par_iter()
             .enumerate()
             .map(|(i, &v)| {
                 let v = v as usize;
-                let mut s = [0f64; 4];
-                for (o, rw) in binding
-                    .views(v)
-                    .iter()
-                    .zip(&robust_w[self.starts[i]..self.starts[i + 1]])
-                {
-                    let g = gains[o.photo as usize].at(&normals[v]);
-                    let w = (o.weight.max(1e-6) * rw) as f64;
-                    for k in 0..3 {
-                        s[k] += w * (o.color[k] / clamp(g[k])) as f64;
-                    }
-                    s[3] += w;
-                }
-                (s[3] > 0.0).then(|| std::array::from_fn(|k| (s[k] / s[3]) as f32))
+                let views = binding.views(v);
+                let g = |j: usize| clamped(&gains[views[j].photo as usize], &normals[v], max_gain);
+                vertex_mean(views, g, &robust_w[self.starts[i]..self.starts[i + 1]])
             })
             .collect();
         for (&v, c) in self.verts.iter().zip(values) {
@@ -764,7 +764,6 @@ impl Rows {
         max_gain: f32,
         outlier_scale: f64,
     ) -> (f64, f64) {
-        let clamp = |g: f32| g.clamp(1.0 / max_gain, max_gain);
         let mut parts: Vec<&mut [f32]> = Vec::with_capacity(self.verts.len());
         let mut tail = robust_w;
         for w in self.starts.windows(2) {
@@ -777,24 +776,105 @@ impl Rows {
             .zip(&self.verts)
             .map(|(rws, &v)| {
                 let v = v as usize;
-                let m = consensus[v];
-                let (mut e2, mut ew) = (0.0, 0.0);
-                for (o, rw) in binding.views(v).iter().zip(rws.iter_mut()) {
-                    let g = gains[o.photo as usize].at(&normals[v]);
-                    let pred: f32 = (0..3).map(|k| clamp(g[k]) * m[k]).sum();
-                    let seen: f32 = o.color.iter().sum();
-                    let r = ((seen.max(1e-3) / pred.max(1e-3)) as f64).ln();
-                    let w = o.weight.max(1e-6) as f64;
-                    e2 += w * ((seen - pred) as f64).powi(2);
-                    ew += w * (pred as f64).powi(2);
-                    *rw = (1.0 / (1.0 + (r / outlier_scale).powi(2))) as f32;
-                }
-                (e2, ew)
+                let views = binding.views(v);
+                let g = |j: usize| clamped(&gains[views[j].photo as usize], &normals[v], max_gain);
+                vertex_weights(views, g, consensus[v], rws, outlier_scale)
             })
             .collect();
         sums.iter()
             .fold((0.0, 0.0), |(a, b), (e2, ew)| (a + e2, b + ew))
     }
+
+    /// Each vertex's consensus at fixed `gains` in one pass (what [`Rows::consensus`] with
+    /// unit weights, [`Rows::reweight`], then [`Rows::consensus`] give, to the bit), written
+    /// into `out`: for the vertices the fit skipped, whose weights nothing else reads.
+    fn settle(
+        &self,
+        binding: &Binding,
+        normals: &[Vector3<f64>],
+        gains: &[PhotoGain],
+        max_gain: f32,
+        outlier_scale: f64,
+        out: &mut [[f32; 3]],
+    ) {
+        let values: Vec<Option<[f32; 3]>> = self
+            .verts
+            .par_iter()
+            .map_init(
+                || (Vec::new(), Vec::new()),
+                |(gs, rws): &mut (Vec<[f32; 3]>, Vec<f32>), &v| {
+                    let v = v as usize;
+                    let views = binding.views(v);
+                    // Each view's gain once for the three steps.
+                    gs.clear();
+                    gs.extend(
+                        views
+                            .iter()
+                            .map(|o| clamped(&gains[o.photo as usize], &normals[v], max_gain)),
+                    );
+                    rws.clear();
+                    rws.resize(views.len(), 1.0);
+                    let first = vertex_mean(views, |j| gs[j], rws);
+                    let m = first.unwrap_or(out[v]);
+                    vertex_weights(views, |j| gs[j], m, rws, outlier_scale);
+                    vertex_mean(views, |j| gs[j], rws).or(first)
+                },
+            )
+            .collect();
+        for (&v, c) in self.verts.iter().zip(values) {
+            if let Some(c) = c {
+                out[v as usize] = c;
+            }
+        }
+    }
+}
+
+/// A photograph's gain at normal `n`, each channel clamped to `[1 / max_gain, max_gain]`.
+fn clamped(gain: &PhotoGain, n: &Vector3<f64>, max_gain: f32) -> [f32; 3] {
+    gain.at(n).map(|g| g.clamp(1.0 / max_gain, max_gain))
+}
+
+/// One vertex's robust weighted mean of its samples `views` divided by their gains `gain(j)`,
+/// with robust weights `robust_w`; None where no sample weighs.
+fn vertex_mean(
+    views: &[ViewSample],
+    gain: impl Fn(usize) -> [f32; 3],
+    robust_w: &[f32],
+) -> Option<[f32; 3]> {
+    let mut s = [0f64; 4];
+    for (j, (o, rw)) in views.iter().zip(robust_w).enumerate() {
+        let g = gain(j);
+        let w = (o.weight.max(1e-6) * rw) as f64;
+        for k in 0..3 {
+            s[k] += w * (o.color[k] / g[k]) as f64;
+        }
+        s[3] += w;
+    }
+    (s[3] > 0.0).then(|| std::array::from_fn(|k| (s[k] / s[3]) as f32))
+}
+
+/// One vertex's Cauchy weights (scale `outlier_scale`, log grey) of its samples `views`
+/// against its consensus `m` times their gains `gain(j)`, into `robust_w`; returns the
+/// weighted squared error of the grey prediction and the weighted squared prediction.
+fn vertex_weights(
+    views: &[ViewSample],
+    gain: impl Fn(usize) -> [f32; 3],
+    m: [f32; 3],
+    robust_w: &mut [f32],
+    outlier_scale: f64,
+) -> (f64, f64) {
+    let (mut e2, mut ew) = (0.0, 0.0);
+    for (j, (o, rw)) in views.iter().zip(robust_w.iter_mut()).enumerate() {
+        let g = gain(j);
+        let pred: f32 = (0..3).map(|k| g[k] * m[k]).sum();
+        let seen: f32 = o.color.iter().sum();
+        let r = ((seen.max(1e-3) / pred.max(1e-3)) as f64).ln();
+        let w = o.weight.max(1e-6) as f64;
+        e2 += w * ((seen - pred) as f64).powi(2);
+        ew += w * (pred as f64).powi(2);
+        *rw = (1.0 / (1.0 + (r / outlier_scale).powi(2))) as f32;
+    }
+    (e2, ew)
 }
 
 /// Gains of `model` for every photograph and the consensus colour of every vertex of `fit` and
@@ -897,18 +977,14 @@ fn fit_model(
     }
     if !rest.verts.is_empty() {
         // One reweighting at the solved gains for the vertices the fit skipped.
-        let mut rw = vec![1f32; rest.samples()];
-        rest.consensus(binding, normals, &gains, &rw, opts.max_gain, &mut consensus);
-        rest.reweight(
+        rest.settle(
             binding,
             normals,
             &gains,
-            &consensus,
-            &mut rw,
             opts.max_gain,
             opts.outlier_scale,
+            &mut consensus,
         );
-        rest.consensus(binding, normals, &gains, &rw, opts.max_gain, &mut consensus);
     }
     (gains, consensus, rms_before, rms_after)
 }
@@ -1485,25 +1561,29 @@ fn fit_photo(
     let mut a = SMatrix::<f64, TERMS, TERMS>::zeros();
     let mut b = SVector::<f64, TERMS>::zeros();
     let mut energy = 0.0;
-    for o in obs {
-        let rw = robust_w[o.sample as usize];
-        let m = grey(&consensus[o.vertex as usize]);
-        let w = (o.weight * rw) as f64
-            / if std::env::var("SCANTEX_RELW").is_ok() {
-                grey(&o.color).max(0.03).powi(2)
-            } else {
-                1.0
-            };
-        let row = SVector::<f64, TERMS>::from_fn(|j, _| {
-            if j < terms {
-                basis_of[o.vertex as usize][j] * m
-            } else {
-                0.0
-            }
-        });
-        a += w * row * row.transpose();
-        b += w * grey(&o.color) * row;
-        energy += w * m * m;
+    if terms == 1 {
+        // The constant term alone: the full rows' first entries, summed in the same order
+        // (the other entries of the rows are zero), without the rest of the outer products.
+        let (mut a00, mut b0) = (0.0, 0.0);
+        for o in obs {
+            let m = grey(&consensus[o.vertex as usize]);
+            let w = (o.weight * robust_w[o.sample as usize]) as f64;
+            let r0 = basis_of[o.vertex as usize][0] * m;
+            a00 += w * r0 * r0;
+            b0 += w * grey(&o.color) * r0;
+            energy += w * m * m;
+        }
+        a[(0, 0)] = a00;
+        b[0] = b0;
+    } else {
+        for o in obs {
+            let m = grey(&consensus[o.vertex as usize]);
+            let w = (o.weight * robust_w[o.sample as usize]) as f64;
+            let row = SVector::<f64, TERMS>::from_fn(|j, _| basis_of[o.vertex as usize][j] * m);
+            a += w * row * row.transpose();
+            b += w * grey(&o.color) * row;
+            energy += w * m * m;
+        }
     }
     if energy <= 1e-12 {
         return PhotoGain::IDENTITY;
@@ -1659,8 +1739,8 @@ mod tests {
         let cand = |delight| Candidate {
             model: GainModel::Exposure,
             delight,
-            score: 0.0,
-            light: 0.1,
+            score: Some(0.0),
+            light: Some(0.1),
             z: 0.0,
             own: 0.0,
         };
@@ -1679,7 +1759,7 @@ mod tests {
                 cand(Delight::Off),
             ];
             for (c, l) in c.iter_mut().zip(&losses) {
-                c.score = l.iter().map(|v| v.unwrap()).sum::<f64>() / 8.0;
+                c.score = Some(l.iter().map(|v| v.unwrap()).sum::<f64>() / 8.0);
             }
             let pick = choose(&mut c, &losses, false, true);
             (c[pick].delight, c)
@@ -1697,8 +1777,8 @@ mod tests {
         // Without auto delighting, the best score decides.
         let losses: Vec<Vec<Option<f64>>> = vec![vec![Some(0.2); 8], vec![Some(0.1); 8]];
         let mut c = vec![cand(Delight::Steps), cand(Delight::Off)];
-        c[0].score = 0.2;
-        c[1].score = 0.1;
+        c[0].score = Some(0.2);
+        c[1].score = Some(0.1);
         assert_eq!(choose(&mut c, &losses, false, false), 1);
         // Where the photographs share one light, only steps.
         assert_eq!(choose(&mut c, &losses, true, true), 0);
@@ -2019,10 +2099,11 @@ mod tests {
         );
         let (b, g) = run(PhotometricOptions::default());
         assert_eq!(g.candidates.len(), 12, "{:?}", g.candidates);
-        assert!(g
-            .candidates
-            .iter()
-            .all(|c| c.score.is_finite() && c.score > 0.0));
+        // Every candidate but the directional ones scored; those have their own loss.
+        assert!(g.candidates.iter().all(|c| match c.model {
+            GainModel::Directional => c.score.is_none() && c.own > 0.0,
+            _ => c.score.is_some_and(|s| s.is_finite() && s > 0.0),
+        }));
         // The scoring picks the delighting among the models it can referee, the model's own
         // predictions pick the one light per photograph that lit the scene.
         assert_eq!(
