@@ -54,3 +54,47 @@ pub mod seams;
 pub mod synth;
 
 pub use error::{Error, Location, MeshElement, Result};
+
+#[cfg(test)]
+mod tests {
+    /// Every choice the pipeline makes comes from its options structs, never from environment
+    /// variables: a switch read from the environment is a default written twice and a result
+    /// no report names (one left from an experiment shipped in the photograph fit, read per
+    /// sample). Reads every source file under `src/`.
+    #[test]
+    fn nothing_reads_the_environment() {
+        fn walk(dir: &std::path::Path, found: &mut Vec<String>, files: &mut usize) {
+            for entry in std::fs::read_dir(dir).unwrap() {
+                let path = entry.unwrap().path();
+                if path.is_dir() {
+                    walk(&path, found, files);
+                } else if path.extension().is_some_and(|e| e == "rs") {
+                    *files += 1;
+                    let text = std::fs::read_to_string(&path).unwrap();
+                    for (i, line) in text.lines().enumerate() {
+                        // Spelled in two parts so that this file does not match itself.
+                        if [concat!("env::", "var"), concat!("var_", "os(")]
+                            .iter()
+                            .any(|p| line.contains(p))
+                        {
+                            found.push(format!("{}:{}: {}", path.display(), i + 1, line.trim()));
+                        }
+                    }
+                }
+            }
+        }
+        let (mut found, mut files) = (Vec::new(), 0);
+        let src = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+        walk(&src, &mut found, &mut files);
+        assert!(
+            files > 50,
+            "read only {files} files under {}",
+            src.display()
+        );
+        assert!(
+            found.is_empty(),
+            "environment read in:\n{}",
+            found.join("\n")
+        );
+    }
+}
