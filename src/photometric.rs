@@ -1159,9 +1159,9 @@ fn robust_step_fit(
 /// It is fitted to the brightness *steps* between nearby vertices (Retinex's prior: shading
 /// varies smoothly with the normal, albedo changes in steps): per pair of `pairs` ([`REACH`]
 /// of the mesh's size apart), the log ratio of its two vertices' consensus grey against the
-/// difference of an order-2 field of the normal, with Cauchy reweighting. Fitting the brightness itself over the normal, as we
-/// did before, reads albedo that follows the normal (a white top over saturated sides) as
-/// light; the steps across such a border are outliers here, and the smooth variation inside
+/// difference of an order-2 field of the normal, with Cauchy reweighting. Fitting the
+/// brightness itself over the normal, as we did before, reads albedo that follows the normal
+/// (a white top over saturated sides) as light; the steps across such a border are outliers here, and the smooth variation inside
 /// each painted region is what the light leaves.
 fn shading_from_steps(
     consensus: &[[f32; 3]],
