@@ -136,6 +136,10 @@ pub struct Candidate {
     pub model: GainModel,
     /// Delighting.
     pub delight: Delight,
+    /// With [`Delight::Steps`], the hops between the two vertices of a step pair: the reach
+    /// by the object's size ([`ring_hops`]), and under [`Delight::Auto`] on meshes where that
+    /// is longer, also [`RING`] hops. None for the other delightings.
+    pub hops: Option<usize>,
     /// Robust mean loss of predicting each photograph from the others ([`solve`]); lower is
     /// better. None for the [`GainModel::Directional`] candidates under [`GainModel::Auto`]:
     /// the prediction fits that same light, so it cannot referee them and is not run.
@@ -279,6 +283,8 @@ pub struct Gains {
     pub model: GainModel,
     /// Delighting used (never `Auto`).
     pub delight: Delight,
+    /// With [`Delight::Steps`], the step pairs' hops ([`Candidate::hops`]); None otherwise.
+    pub hops: Option<usize>,
     /// With `Auto`, every candidate tried and its score, in the order tried; empty otherwise.
     pub candidates: Vec<Candidate>,
     /// With `Auto`: the photographs seemed to share one light, so delighting came from the
@@ -304,6 +310,7 @@ impl Gains {
         Gains {
             model: GainModel::Off,
             delight: Delight::Off,
+            hops: None,
             candidates: Vec::new(),
             shared_light: false,
             per_photo: vec![PhotoGain::IDENTITY; photos],
@@ -393,15 +400,15 @@ struct Obs {
 /// length; the mesh's edges give the neighbours the [`Delight::Steps`] fit compares, its
 /// positions the cells [`prediction_loss`] averages over).
 ///
-/// With [`GainModel::Auto`] or [`Delight::Auto`] every combination is solved and scored by
-/// how well it predicts each photograph from the others: for photograph `i`, the albedo a
-/// candidate gives a vertex from its other photographs, times the simplest light that stays
-/// identifiable (a white balance and one distant light plus ambient, `e * (1 + max(0, <n,
-/// L>))`, fitted to photograph `i` alone), against what `i` saw; the loss is Cauchy (scale
-/// [`SCORE_SCALE`] in log colour) so that occluders and highlights do not decide. A candidate
-/// that left the average light in the texture, or took albedo for light, needs a light that no
-/// single distant source makes, and loses. The lowest loss wins; ties go to the candidate tried
-/// first (less correction).
+/// With [`GainModel::Auto`] or [`Delight::Auto`] every combination (the steps at two reaches
+/// where [`ring_hops`] exceeds [`RING`]) is solved and scored by how well it predicts each
+/// photograph from the others: for photograph `i`, the albedo a candidate gives a vertex from
+/// its other photographs, times the simplest light that stays identifiable (a white balance
+/// and one distant light plus ambient, `e * (1 + max(0, <n, L>))`, fitted to photograph `i`
+/// alone), against what `i` saw; the loss is Cauchy (scale [`SCORE_SCALE`] in log colour) so
+/// that occluders and highlights do not decide. A candidate that left the average light in
+/// the texture, or took albedo for light, needs a light that no single distant source makes,
+/// and loses. The lowest loss wins; ties go to the candidate tried first (less correction).
 pub fn solve(
     binding: &Binding,
     mesh: &Mesh,
@@ -484,8 +491,25 @@ fn solve_capped(
     // shading cannot sway.
     let auto_model = models.len() > 1;
     let refereed = |model: GainModel| !auto_model || model != GainModel::Directional;
-    // The step fit's vertex pairs, found once for every gain model that needs them.
-    let pairs = std::sync::OnceLock::new();
+    // The step fit's reaches: the object's share ([`ring_hops`]) and, where that is longer
+    // and the scoring chooses, also [`RING`] hops. Which suits a surface depends on how its
+    // albedo changes: on the sample's torus split in sixteen the short reach sees the
+    // albedo's speckle, on the corset refined to 1.5M faces the long one spans its fabric's
+    // pattern (`docs/decisions.md`, "The step fit's reach: both, scored").
+    let size_hops = ring_hops(mesh);
+    let mut runs_of: Vec<(Delight, Option<usize>)> = Vec::new();
+    for &d in &delights {
+        if d == Delight::Steps {
+            runs_of.push((d, Some(size_hops)));
+            if opts.delight == Delight::Auto && size_hops > RING {
+                runs_of.push((d, Some(RING)));
+            }
+        } else {
+            runs_of.push((d, None));
+        }
+    }
+    // The step fit's vertex pairs, found once per reach for every gain model that needs them.
+    let pairs = [std::sync::OnceLock::new(), std::sync::OnceLock::new()];
     // Every candidate is independent of the others: the models, and the delightings of each,
     // run side by side (collected in the order tried).
     let solved: Vec<(Gains, Candidate, Vec<Option<f64>>)> = models
@@ -499,13 +523,14 @@ fn solve_capped(
             } else {
                 0.0
             };
-            let runs: Vec<_> = delights
+            let runs: Vec<_> = runs_of
                 .par_iter()
-                .map(|&delight| {
+                .map(|&(delight, hops)| {
                     let coeffs = match delight {
                         Delight::Steps => {
-                            let pairs = pairs
-                                .get_or_init(|| ring_pairs(mesh, ring_hops(mesh), &|v| used[v]));
+                            let hops = hops.unwrap_or(size_hops);
+                            let pairs = pairs[usize::from(hops != size_hops)]
+                                .get_or_init(|| ring_pairs(mesh, hops, &|v| used[v]));
                             shading_from_steps(&consensus, &used, &basis_of, pairs, opts.ridge)
                         }
                         Delight::Global => {
@@ -516,6 +541,7 @@ fn solve_capped(
                     let gains = Gains {
                         model,
                         delight,
+                        hops,
                         candidates: Vec::new(),
                         shared_light: false,
                         per_photo: per_photo.clone(),
@@ -537,6 +563,7 @@ fn solve_capped(
                     let c = Candidate {
                         model,
                         delight,
+                        hops,
                         score,
                         light,
                         z: 0.0,
@@ -595,10 +622,12 @@ fn solve_capped(
             .min_by(|a, b| a.own.total_cmp(&b.own))
             .map(|c| c.model)
             .expect("at least one candidate");
-        let delight = candidates[choice].delight;
-        if let Some(i) = (0..candidates.len())
-            .find(|&i| candidates[i].model == best && candidates[i].delight == delight)
-        {
+        let (delight, hops) = (candidates[choice].delight, candidates[choice].hops);
+        if let Some(i) = (0..candidates.len()).find(|&i| {
+            candidates[i].model == best
+                && candidates[i].delight == delight
+                && candidates[i].hops == hops
+        }) {
             choice = i;
         }
     }
@@ -1787,6 +1816,7 @@ mod tests {
         let cand = |delight| Candidate {
             model: GainModel::Exposure,
             delight,
+            hops: None,
             score: Some(0.0),
             light: Some(0.1),
             z: 0.0,
@@ -2160,6 +2190,66 @@ mod tests {
             "{g:?}"
         );
         assert!((contrast(&b) - 1.0).abs() < 0.1);
+    }
+
+    /// On a mesh finer than the ones that decided [`RING`], `auto` scores the steps at the
+    /// reach by the object's size and at [`RING`] hops, for every model, and keeps the
+    /// better-scoring reach when it keeps steps; `--delight steps` alone takes the size's
+    /// reach, unscored.
+    #[test]
+    fn a_fine_mesh_scores_the_steps_at_both_reaches() {
+        let (mesh, normals, binding) = speckled_sphere(160, 320);
+        let hops = ring_hops(&mesh);
+        assert!(hops > RING, "{hops}");
+        let (_, g) = normalise(
+            binding.clone(),
+            &mesh,
+            &normals,
+            &PhotometricOptions::default(),
+        );
+        for c in &g.candidates {
+            match c.delight {
+                Delight::Steps => assert!(c.hops == Some(hops) || c.hops == Some(RING), "{c:?}"),
+                _ => assert_eq!(c.hops, None, "{c:?}"),
+            }
+        }
+        for model in [
+            GainModel::Off,
+            GainModel::Exposure,
+            GainModel::Lighting,
+            GainModel::Directional,
+        ] {
+            for h in [hops, RING] {
+                let n = g
+                    .candidates
+                    .iter()
+                    .filter(|c| {
+                        c.model == model && c.delight == Delight::Steps && c.hops == Some(h)
+                    })
+                    .count();
+                assert_eq!(n, 1, "{model:?} at {h} hops: {:?}", g.candidates);
+            }
+        }
+        assert_eq!(g.candidates.len(), 16);
+        if g.delight == Delight::Steps {
+            let best = g
+                .candidates
+                .iter()
+                .filter(|c| c.delight == Delight::Steps && c.score.is_some())
+                .min_by(|a, b| rank_score(a).total_cmp(&rank_score(b)))
+                .expect("scored steps candidates");
+            assert_eq!(g.hops, best.hops, "{:?}", g.candidates);
+        } else {
+            assert_eq!(g.hops, None);
+        }
+        let (_, g) = normalise(
+            binding,
+            &mesh,
+            &normals,
+            &with(GainModel::Lighting, Delight::Steps),
+        );
+        assert!(g.candidates.is_empty());
+        assert_eq!((g.delight, g.hops), (Delight::Steps, Some(hops)));
     }
 
     /// A white balance beyond the bound is pulled in, keeping its geometric mean; one inside it
