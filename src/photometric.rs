@@ -1042,26 +1042,13 @@ const MAX_RING: usize = 32;
 /// Hops between the vertices of a step pair on `mesh`: [`REACH`] of its diagonal in mean
 /// edges, at least [`RING`] and at most [`MAX_RING`].
 fn ring_hops(mesh: &Mesh) -> usize {
-    let (mut lo, mut hi) = ([f64::MAX; 3], [f64::MIN; 3]);
-    for p in &mesh.positions {
-        for k in 0..3 {
-            lo[k] = lo[k].min(p[k]);
-            hi[k] = hi[k].max(p[k]);
-        }
-    }
-    let diag = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
-    let (mut sum, mut n) = (0.0, 0usize);
-    for f in &mesh.faces {
-        for k in 0..3 {
-            let (a, b) = (f[k].0 as usize, f[(k + 1) % 3].0 as usize);
-            sum += (mesh.positions[a] - mesh.positions[b]).norm();
-            n += 1;
-        }
-    }
-    if n == 0 || sum <= 0.0 || !diag.is_finite() {
+    let (lo, hi) = mesh.bounding_box();
+    let diag = (hi - lo).norm();
+    let edge = mesh.mean_edge_length();
+    if edge <= 0.0 || !diag.is_finite() {
         return RING;
     }
-    let hops = (REACH * diag / (sum / n as f64)).round();
+    let hops = (REACH * diag / edge).round();
     (hops as usize).clamp(RING, MAX_RING)
 }
 
@@ -1187,11 +1174,12 @@ fn robust_step_fit(
 ///
 /// It is fitted to the brightness *steps* between nearby vertices (Retinex's prior: shading
 /// varies smoothly with the normal, albedo changes in steps): per pair of `pairs` ([`REACH`]
-/// of the mesh's size apart), the log ratio of its two vertices' consensus grey against the
-/// difference of an order-2 field of the normal, with Cauchy reweighting. Fitting the
-/// brightness itself over the normal, as we did before, reads albedo that follows the normal
-/// (a white top over saturated sides) as light; the steps across such a border are outliers here, and the smooth variation inside
-/// each painted region is what the light leaves.
+/// of the mesh's size apart, or [`RING`] hops: [`solve`]), the log ratio of its two
+/// vertices' consensus grey against the difference of an order-2 field of the normal, with
+/// Cauchy reweighting. Fitting the brightness itself over the normal, as we did before,
+/// reads albedo that follows the normal (a white top over saturated sides) as light; the
+/// steps across such a border are outliers here, and the smooth variation inside each painted
+/// region is what the light leaves.
 fn shading_from_steps(
     consensus: &[[f32; 3]],
     used: &[bool],
