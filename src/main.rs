@@ -14,10 +14,11 @@ use std::process::ExitCode;
     name = "scantex",
     version,
     about = "Texture atlases for 3D-scanned objects from calibrated photographs",
-    after_help = "Exit status: 0 done; 1 bad input or option value (the message names the file, \
-                  line or element), or a CPU this build cannot use; 2 usage error; 3 internal \
-                  error (a bug: please report it); 128 + N stopped by signal N (nothing \
-                  half-written is left)."
+    after_help = "Exit status: 0 done; 1 bad input, or an option value only the input shows to \
+                  be wrong (the message names the file, line, element or option), or a CPU this \
+                  build cannot use; 2 usage error: an unknown option or a value out of its range; \
+                  3 internal error (a bug: please report it); 128 + N stopped by signal N \
+                  (nothing half-written is left)."
 )]
 struct Cli {
     /// Worker threads for the data-parallel work (0: one per core, or RAYON_NUM_THREADS when
@@ -93,8 +94,9 @@ enum Command {
         #[arg(long)]
         json: Option<PathBuf>,
     },
-    /// Texture a scanned mesh from its calibrated photographs: atlas, binding, resampling.
-    /// Writes <out>/model.obj (+ .mtl and the atlas), model.glb and report.json.
+    /// Texture a scanned mesh from its calibrated photographs: atlas, binding, gains,
+    /// resampling, merging, restoration and synthesis of what no photograph saw. Writes
+    /// <out>/model.obj (+ .mtl and the atlas), model.glb and report.json.
     Texture {
         #[command(flatten)]
         scene: SceneArgs,
