@@ -28,7 +28,7 @@ if [ -f "$data/avocado/Avocado.gltf" ]; then
   "$bin" sample --from-mesh "$data/avocado/Avocado.gltf" --up y -o "$work/avocado" 2>/dev/null
   scenes="$scenes $work/avocado"
 fi
-psnr() { "$bin" eval "$1/heldout" --mesh "$2/model.obj" --gain-fit | awk '/^mean/ {print $3}'; }
+psnr() { "$bin" eval "$1/heldout" --mesh "$2/model.obj" --gain-fit | awk '/^mean/ {print $3; exit}'; }
 echo "| scene | off/off | off/steps | off/global | exposure/off | exposure/steps | exposure/global | lighting/off | lighting/steps | lighting/global | auto | auto chose | auto s | lighting/global s |"
 echo "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
 for s in $scenes; do

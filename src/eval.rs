@@ -39,6 +39,12 @@ pub struct ImageScore {
     /// Scores over the pixels whose surface no input photograph saw, when the photograph
     /// has an unseen-surface mask ([`crate::scene::Photo::unseen`]).
     pub unseen: Option<UnseenScore>,
+    /// With an unseen-surface mask, the same scores over the pixels whose surface the input
+    /// photographs saw: what they give, the reference for [`ImageScore::unseen`]'s detail
+    /// and Gram distance (its ΔE is about 0, the gains being fitted there; its rim is the
+    /// same band as the unseen scores', so the same value in each photograph, though the
+    /// means weigh the photographs by their seen pixels).
+    pub seen: Option<UnseenScore>,
 }
 
 /// A rendered pixel whose channels (in [0, 1], after gains) sum to at most this is black.
@@ -167,6 +173,7 @@ pub fn compare(
         completeness: if fp > 0 { cov as f64 / fp as f64 } else { 0.0 },
         gains,
         unseen: None,
+        seen: None,
     }
 }
 
@@ -548,6 +555,7 @@ pub fn evaluate(
             let seen_px: Vec<bool> = (0..n).map(|i| at(&seen_region, i)).collect();
             let cov_px: Vec<bool> = (0..n).map(|i| r.coverage.as_raw()[i] > 0).collect();
             score.unseen = unseen_score(&gained, &img, &unseen_px, &seen_px, &cov_px);
+            score.seen = unseen_score(&gained, &img, &seen_px, &unseen_px, &cov_px);
         }
         images.push(score);
     }
@@ -563,18 +571,22 @@ pub fn evaluate(
             one_minus_ncc: avg(&|s| s.one_minus_ncc),
             completeness: avg(&|s| s.completeness),
             gains: std::array::from_fn(|k| avg(&|s| s.gains[k])),
-            unseen: mean_unseen(&images),
+            unseen: mean_unseen(&images, |s| s.unseen.as_ref()),
+            seen: mean_unseen(&images, |s| s.seen.as_ref()),
         }
     });
     Ok(EvalReport { images, mean })
 }
 
-/// Pixel-weighted means of the unseen-region scores of images with at least 500 unseen
-/// pixels (smaller slivers are mostly border).
-fn mean_unseen(images: &[ImageScore]) -> Option<UnseenScore> {
+/// Pixel-weighted means of the region scores (`of`: the unseen or the seen ones) of images
+/// with at least 500 pixels in the region (smaller slivers are mostly border).
+fn mean_unseen(
+    images: &[ImageScore],
+    of: impl Fn(&ImageScore) -> Option<&UnseenScore>,
+) -> Option<UnseenScore> {
     let u: Vec<&UnseenScore> = images
         .iter()
-        .filter_map(|s| s.unseen.as_ref())
+        .filter_map(of)
         .filter(|u| u.pixels >= 500)
         .collect();
     let total: usize = u.iter().map(|s| s.pixels).sum();
@@ -631,6 +643,26 @@ impl std::fmt::Display for EvalReport {
                     u.delta_e,
                     u.gram_distance,
                     u.rim_gradient_ratio
+                )?;
+            }
+        }
+        let with_seen: Vec<(&str, &UnseenScore)> = self
+            .images
+            .iter()
+            .chain(self.mean.iter())
+            .filter_map(|s| s.seen.as_ref().map(|u| (s.name.as_str(), u)))
+            .collect();
+        if !with_seen.is_empty() {
+            writeln!(
+                f,
+                "\nthe same where the input photographs saw it (what they give):\n{:<32} {:>9} {:>8} {:>7} {:>7} {:>7}",
+                "image", "pixels", "coverage", "detail", "dE", "Gram"
+            )?;
+            for (name, u) in with_seen {
+                writeln!(
+                    f,
+                    "{:<32} {:>9} {:>8.4} {:>7.3} {:>7.2} {:>7.3}",
+                    name, u.pixels, u.coverage, u.detail_ratio, u.delta_e, u.gram_distance
                 )?;
             }
         }

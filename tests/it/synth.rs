@@ -26,9 +26,10 @@ fn one_sided(dir: &Path, object: SampleObject) {
     scantex::sample::generate_to(None, &opts, dir).unwrap();
 }
 
-/// `mesh`'s mean scores where no input photograph of the one-sided `scene` saw the surface.
-fn unseen_scores(scene: &Path, mesh: &Path) -> UnseenScore {
-    evaluate_scene(
+/// `mesh`'s mean scores where no input photograph of the one-sided `scene` saw the surface,
+/// and the same scores where they did.
+fn both_scores(scene: &Path, mesh: &Path) -> (UnseenScore, UnseenScore) {
+    let mean = evaluate_scene(
         mesh,
         &SceneSpec {
             dir: Some(scene.join("heldout")),
@@ -38,9 +39,13 @@ fn unseen_scores(scene: &Path, mesh: &Path) -> UnseenScore {
     )
     .unwrap()
     .mean
-    .unwrap()
-    .unseen
-    .expect("the held-out views have unseen-surface masks")
+    .unwrap();
+    (
+        mean.unseen
+            .expect("the held-out views have unseen-surface masks"),
+        mean.seen
+            .expect("the held-out views see photographed surface"),
+    )
 }
 
 #[test]
@@ -51,12 +56,18 @@ fn the_true_texture_scores_as_the_truth_where_no_photograph_saw() {
     let dir = tempfile::tempdir().unwrap();
     let scene = dir.path().join("scene");
     one_sided(&scene, SampleObject::Torus);
-    let s = unseen_scores(&scene, &scene.join("truth/model.glb"));
+    let (s, seen) = both_scores(&scene, &scene.join("truth/model.glb"));
     assert!(s.coverage > 0.999, "{s:?}");
     assert!((s.detail_ratio - 1.0).abs() < 0.05, "{s:?}");
     assert!(s.gram_distance < 0.1, "{s:?}");
     assert!((s.rim_gradient_ratio - 1.0).abs() < 0.05, "{s:?}");
     assert!(s.delta_e < 0.5, "{s:?}");
+    // And so does it where the photographs saw it, over many more pixels.
+    assert!(seen.pixels > 4 * s.pixels, "{seen:?} {s:?}");
+    assert!(seen.coverage > 0.999, "{seen:?}");
+    assert!((seen.detail_ratio - 1.0).abs() < 0.05, "{seen:?}");
+    assert!(seen.gram_distance < 0.1, "{seen:?}");
+    assert!(seen.delta_e < 0.5, "{seen:?}");
 }
 
 #[test]
@@ -96,9 +107,9 @@ fn an_unseen_side_gets_texture_not_a_smear() {
     opts.synth.exemplar = ExemplarSource::Off;
     let without = common::texture_into(&scene, &opts, &dir.path().join("vertex"));
     assert!(without.report.pages[0].synth.is_none());
-    let (a, b) = (
-        unseen_scores(&scene, &dir.path().join("stage6/model.obj")),
-        unseen_scores(&scene, &dir.path().join("vertex/model.obj")),
+    let ((a, a_seen), (b, b_seen)) = (
+        both_scores(&scene, &dir.path().join("stage6/model.obj")),
+        both_scores(&scene, &dir.path().join("vertex/model.obj")),
     );
     // Nothing uncovered; detail where the vertex-colour fill is a smear, texture statistics
     // and the mean colour closer to the truth's. The detail comes from the surface's own
@@ -116,6 +127,22 @@ fn an_unseen_side_gets_texture_not_a_smear() {
     assert!(
         a.gram_distance < b.gram_distance,
         "stage 6 {a:?} vertex fill {b:?}"
+    );
+    // Against what the photographs give where they saw the surface (about the same there for
+    // both fills: the scores' filters reach a few pixels over the rim): the vertex fill keeps
+    // under half of that detail, stage 6 most of it.
+    assert!(
+        (a_seen.detail_ratio - b_seen.detail_ratio).abs() < 0.02,
+        "{a_seen:?} {b_seen:?}"
+    );
+    assert!(a_seen.detail_ratio < 0.95, "{a_seen:?}");
+    assert!(
+        b.detail_ratio < 0.5 * b_seen.detail_ratio,
+        "{b:?} {b_seen:?}"
+    );
+    assert!(
+        a.detail_ratio > 0.6 * a_seen.detail_ratio,
+        "{a:?} {a_seen:?}"
     );
 }
 
@@ -139,8 +166,8 @@ fn the_unseen_side_takes_the_colour_of_surface_of_the_same_shape() {
     opts.synth.exemplar = ExemplarSource::Off;
     common::texture_into(&scene, &opts, &dir.path().join("vertex"));
     let (a, b) = (
-        unseen_scores(&scene, &dir.path().join("stage6/model.obj")),
-        unseen_scores(&scene, &dir.path().join("vertex/model.obj")),
+        both_scores(&scene, &dir.path().join("stage6/model.obj")).0,
+        both_scores(&scene, &dir.path().join("vertex/model.obj")).0,
     );
     assert!(a.coverage > 0.999, "{a:?}");
     assert!(
