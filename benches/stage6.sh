@@ -2,8 +2,8 @@
 # Stage 6 against the fills it replaces, on a scene made by
 #   scantex sample --from-mesh ... --unseen-sector 200 --heldout 8 -o SCENE
 # Usage: sh benches/stage6.sh SCENE [SCANTEX_BINARY [BASELINE_BINARY]]. Prints wall time,
-# peak memory and the held-out scores (all pixels, and where no input photograph saw the
-# surface) per fill; with a baseline binary (a previous release), its default run first.
+# peak memory and the held-out scores (all pixels, where no input photograph saw the
+# surface, and the same where they did) per fill; with a baseline binary (a previous release), its default run first.
 # On a scene without held-out unseen masks (the bundled sample) only the first table prints.
 # Fills other than the default need a binary with stage 6.
 set -eu

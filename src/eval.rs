@@ -54,7 +54,8 @@ pub const BLACK_SUM: f64 = 0.02;
 pub const BLACK_TRUTH_SUM: f64 = 0.06;
 
 /// How a texture does where no input photograph saw the surface, against the truth (the
-/// held-out photograph), after per-channel gains fitted on the seen pixels.
+/// held-out photograph), after per-channel gains fitted on the seen pixels; as
+/// [`ImageScore::seen`], the same over the seen pixels ("unseen" below then reads "seen").
 #[derive(Debug, Clone, Copy, Serialize, PartialEq)]
 pub struct UnseenScore {
     /// Unseen pixels (inside the object's footprint).
@@ -571,8 +572,8 @@ pub fn evaluate(
             one_minus_ncc: avg(&|s| s.one_minus_ncc),
             completeness: avg(&|s| s.completeness),
             gains: std::array::from_fn(|k| avg(&|s| s.gains[k])),
-            unseen: mean_unseen(&images, |s| s.unseen.as_ref()),
-            seen: mean_unseen(&images, |s| s.seen.as_ref()),
+            unseen: mean_region(&images, |s| s.unseen.as_ref()),
+            seen: mean_region(&images, |s| s.seen.as_ref()),
         }
     });
     Ok(EvalReport { images, mean })
@@ -580,7 +581,7 @@ pub fn evaluate(
 
 /// Pixel-weighted means of the region scores (`of`: the unseen or the seen ones) of images
 /// with at least 500 pixels in the region (smaller slivers are mostly border).
-fn mean_unseen(
+fn mean_region(
     images: &[ImageScore],
     of: impl Fn(&ImageScore) -> Option<&UnseenScore>,
 ) -> Option<UnseenScore> {
