@@ -277,6 +277,50 @@ pub fn unseen_score(
     seen: &[bool],
     covered: &[bool],
 ) -> Option<UnseenScore> {
+    region_score(&Filtered::new(rendered, photo), unseen, seen, covered)
+}
+
+/// What [`region_score`] reads of a rendering and its photograph, whichever region it scores:
+/// both images, their luma and its blur, and their filter responses.
+struct Filtered<'a> {
+    rendered: &'a Rgb32FImage,
+    photo: &'a Rgb32FImage,
+    lo: Vec<f64>,
+    lt: Vec<f64>,
+    bo: Vec<f64>,
+    bt: Vec<f64>,
+    ro: Vec<[f64; 8]>,
+    rt: Vec<[f64; 8]>,
+}
+
+impl<'a> Filtered<'a> {
+    fn new(rendered: &'a Rgb32FImage, photo: &'a Rgb32FImage) -> Self {
+        let (w, h) = (photo.width() as usize, photo.height() as usize);
+        let lo: Vec<f64> = rendered.pixels().map(|p| luma(&p.0)).collect();
+        let lt: Vec<f64> = photo.pixels().map(|p| luma(&p.0)).collect();
+        let (bo, bt) = (blur(&lo, w, h), blur(&lt, w, h));
+        Filtered {
+            rendered,
+            photo,
+            lo,
+            lt,
+            bo,
+            bt,
+            ro: responses(rendered),
+            rt: responses(photo),
+        }
+    }
+}
+
+/// [`unseen_score`] over `unseen` with the images filtered once ([`Filtered`]), so that
+/// [`evaluate`] scores both regions of a view from the same filtering.
+fn region_score(
+    f: &Filtered,
+    unseen: &[bool],
+    seen: &[bool],
+    covered: &[bool],
+) -> Option<UnseenScore> {
+    let (rendered, photo) = (f.rendered, f.photo);
     let (w, h) = (photo.width() as usize, photo.height() as usize);
     let pixels = unseen.iter().filter(|&&u| u).count();
     if pixels == 0 {
@@ -310,9 +354,7 @@ pub fn unseen_score(
         .count();
     let inner = erode(unseen, w, h, 2);
     let inner_n = inner.iter().filter(|&&v| v).count().max(1);
-    let lo: Vec<f64> = rendered.pixels().map(|p| luma(&p.0)).collect();
-    let lt: Vec<f64> = photo.pixels().map(|p| luma(&p.0)).collect();
-    let (bo, bt) = (blur(&lo, w, h), blur(&lt, w, h));
+    let (lo, lt, bo, bt) = (&f.lo, &f.lt, &f.bo, &f.bt);
     let (mut eo, mut et) = (0.0, 0.0);
     for i in (0..w * h).filter(|&i| inner[i]) {
         eo += (lo[i] - bo[i]).powi(2);
@@ -328,8 +370,7 @@ pub fn unseen_score(
     }
     let (la, lb) = (lab(mo), lab(mt));
     let delta_e = (0..3).map(|k| (la[k] - lb[k]).powi(2)).sum::<f64>().sqrt();
-    let gram = |img: &Rgb32FImage| {
-        let r = responses(img);
+    let gram = |r: &[[f64; 8]]| {
         let mut g = [[0f64; 8]; 8];
         for i in (0..w * h).filter(|&i| inner[i]) {
             for a in 0..8 {
@@ -340,7 +381,7 @@ pub fn unseen_score(
         }
         g
     };
-    let (go, gt) = (gram(rendered), gram(photo));
+    let (go, gt) = (gram(&f.ro), gram(&f.rt));
     let (mut num, mut den) = (0.0, 0.0);
     for a in 0..8 {
         for b in 0..8 {
@@ -361,8 +402,8 @@ pub fn unseen_score(
     let (mut go_r, mut gt_r) = (0.0, 0.0);
     for i in 0..w * h {
         if (unseen[i] && near_seen[i]) || (seen[i] && near_unseen[i]) {
-            go_r += grad(&bo, i);
-            gt_r += grad(&bt, i);
+            go_r += grad(bo, i);
+            gt_r += grad(bt, i);
         }
     }
     let ratio = |a: f64, b: f64| if b > 0.0 { a / b } else { 0.0 };
@@ -555,8 +596,9 @@ pub fn evaluate(
             let unseen_px: Vec<bool> = (0..n).map(|i| at(&u, i) && at(&footprint, i)).collect();
             let seen_px: Vec<bool> = (0..n).map(|i| at(&seen_region, i)).collect();
             let cov_px: Vec<bool> = (0..n).map(|i| r.coverage.as_raw()[i] > 0).collect();
-            score.unseen = unseen_score(&gained, &img, &unseen_px, &seen_px, &cov_px);
-            score.seen = unseen_score(&gained, &img, &seen_px, &unseen_px, &cov_px);
+            let filtered = Filtered::new(&gained, &img);
+            score.unseen = region_score(&filtered, &unseen_px, &seen_px, &cov_px);
+            score.seen = region_score(&filtered, &seen_px, &unseen_px, &cov_px);
         }
         images.push(score);
     }
