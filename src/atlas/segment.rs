@@ -222,6 +222,7 @@ fn merge_small(
     mut charts: Vec<Vec<FaceId>>,
     min_faces: usize,
 ) -> Vec<Vec<FaceId>> {
+    let mut sets = StampedSets::new(mesh.num_faces(), mesh.num_vertices());
     let mut owner = vec![0usize; mesh.num_faces()];
     for (i, c) in charts.iter().enumerate() {
         for f in c {
@@ -251,7 +252,7 @@ fn merge_small(
             cands.sort_by_key(|&(o, n)| (Reverse(n), o));
             for (o, _) in cands {
                 let union: Vec<FaceId> = charts[o].iter().chain(&charts[i]).copied().collect();
-                if is_disk(mesh, adj, &union) {
+                if disk_test(mesh, adj, &union, &mut sets) {
                     for f in &charts[i] {
                         owner[f.idx()] = o;
                     }
@@ -274,60 +275,233 @@ fn merge_small(
 /// characteristic 1, one boundary loop, and every boundary vertex on exactly two boundary edges
 /// (no pinch).
 pub fn is_disk(mesh: &Mesh, adj: &Adjacency, faces: &[FaceId]) -> bool {
+    disk_test(mesh, adj, faces, &mut HashedSets::default())
+}
+
+/// The sets one disk test keeps: faces in the chart and reached, vertices with their
+/// boundary degree, and each boundary edge's end by its start.
+trait DiskSets {
+    /// Empties every set.
+    fn clear(&mut self);
+    fn add_member(&mut self, f: u32);
+    fn is_member(&self, f: u32) -> bool;
+    /// Marks `f` reached; true the first time.
+    fn reach(&mut self, f: u32) -> bool;
+    fn reached(&self) -> usize;
+    fn add_vertex(&mut self, v: u32);
+    fn vertices(&self) -> usize;
+    /// Adds one to a vertex's boundary degree (the vertex was added).
+    fn bump(&mut self, v: u32);
+    /// True if some vertex has a boundary degree other than 0 and 2.
+    fn bad_degree(&self) -> bool;
+    /// Records the boundary edge `a -> b`; false if `a` already starts one.
+    fn set_next(&mut self, a: u32, b: u32) -> bool;
+    fn next(&self, a: u32) -> Option<u32>;
+}
+
+/// [`DiskSets`] in hash maps: for a single test, which touches only the chart's faces.
+#[derive(Default)]
+struct HashedSets {
+    member: FxHashMap<u32, ()>,
+    reached: FxHashMap<u32, ()>,
+    degree: FxHashMap<u32, u32>,
+    next: FxHashMap<u32, u32>,
+}
+
+impl DiskSets for HashedSets {
+    fn clear(&mut self) {
+        self.member.clear();
+        self.reached.clear();
+        self.degree.clear();
+        self.next.clear();
+    }
+    fn add_member(&mut self, f: u32) {
+        self.member.insert(f, ());
+    }
+    fn is_member(&self, f: u32) -> bool {
+        self.member.contains_key(&f)
+    }
+    fn reach(&mut self, f: u32) -> bool {
+        self.reached.insert(f, ()).is_none()
+    }
+    fn reached(&self) -> usize {
+        self.reached.len()
+    }
+    fn add_vertex(&mut self, v: u32) {
+        self.degree.entry(v).or_insert(0);
+    }
+    fn vertices(&self) -> usize {
+        self.degree.len()
+    }
+    fn bump(&mut self, v: u32) {
+        *self
+            .degree
+            .get_mut(&v)
+            .expect("boundary vertices are the faces'") += 1;
+    }
+    fn bad_degree(&self) -> bool {
+        self.degree.values().any(|&d| d != 0 && d != 2)
+    }
+    fn set_next(&mut self, a: u32, b: u32) -> bool {
+        self.next.insert(a, b).is_none()
+    }
+    fn next(&self, a: u32) -> Option<u32> {
+        self.next.get(&a).copied()
+    }
+}
+
+/// [`DiskSets`] in arrays over the whole mesh, marked with a stamp per test: for many tests in
+/// a row, where most of the time went into hashing a large chart's faces again for every small
+/// chart merged into it (`merge_small`: 2.0 CPU s of the 1.5M-face scene's atlas, on one
+/// core).
+struct StampedSets {
+    stamp: u32,
+    member: Vec<u32>,
+    reached: Vec<u32>,
+    n_reached: usize,
+    vertex: Vec<u32>,
+    degree: Vec<u32>,
+    touched: Vec<u32>,
+    next_stamp: Vec<u32>,
+    next: Vec<u32>,
+}
+
+impl StampedSets {
+    fn new(faces: usize, vertices: usize) -> StampedSets {
+        StampedSets {
+            stamp: 0,
+            member: vec![0; faces],
+            reached: vec![0; faces],
+            n_reached: 0,
+            vertex: vec![0; vertices],
+            degree: vec![0; vertices],
+            touched: Vec::new(),
+            next_stamp: vec![0; vertices],
+            next: vec![0; vertices],
+        }
+    }
+}
+
+impl DiskSets for StampedSets {
+    fn clear(&mut self) {
+        if self.stamp == u32::MAX {
+            for v in [
+                &mut self.member,
+                &mut self.reached,
+                &mut self.vertex,
+                &mut self.next_stamp,
+            ] {
+                v.fill(0);
+            }
+            self.stamp = 0;
+        }
+        self.stamp += 1;
+        self.n_reached = 0;
+        self.touched.clear();
+    }
+    fn add_member(&mut self, f: u32) {
+        self.member[f as usize] = self.stamp;
+    }
+    fn is_member(&self, f: u32) -> bool {
+        self.member[f as usize] == self.stamp
+    }
+    fn reach(&mut self, f: u32) -> bool {
+        let first = self.reached[f as usize] != self.stamp;
+        self.reached[f as usize] = self.stamp;
+        self.n_reached += usize::from(first);
+        first
+    }
+    fn reached(&self) -> usize {
+        self.n_reached
+    }
+    fn add_vertex(&mut self, v: u32) {
+        if self.vertex[v as usize] != self.stamp {
+            self.vertex[v as usize] = self.stamp;
+            self.degree[v as usize] = 0;
+            self.touched.push(v);
+        }
+    }
+    fn vertices(&self) -> usize {
+        self.touched.len()
+    }
+    fn bump(&mut self, v: u32) {
+        debug_assert_eq!(self.vertex[v as usize], self.stamp);
+        self.degree[v as usize] += 1;
+    }
+    fn bad_degree(&self) -> bool {
+        self.touched.iter().any(|&v| {
+            let d = self.degree[v as usize];
+            d != 0 && d != 2
+        })
+    }
+    fn set_next(&mut self, a: u32, b: u32) -> bool {
+        let fresh = self.next_stamp[a as usize] != self.stamp;
+        self.next_stamp[a as usize] = self.stamp;
+        self.next[a as usize] = b;
+        fresh
+    }
+    fn next(&self, a: u32) -> Option<u32> {
+        (self.next_stamp[a as usize] == self.stamp).then(|| self.next[a as usize])
+    }
+}
+
+/// [`is_disk`] with its sets in `sets`.
+fn disk_test(mesh: &Mesh, adj: &Adjacency, faces: &[FaceId], sets: &mut impl DiskSets) -> bool {
     if faces.is_empty() {
         return false;
     }
-    let member: FxHashMap<u32, ()> = faces.iter().map(|f| (f.0, ())).collect();
+    sets.clear();
+    for f in faces {
+        sets.add_member(f.0);
+    }
     // Connected through crossable edges inside the chart.
-    let mut seen: FxHashMap<u32, ()> =
-        FxHashMap::with_capacity_and_hasher(faces.len(), Default::default());
     let mut queue = VecDeque::from([faces[0].0]);
-    seen.insert(faces[0].0, ());
+    sets.reach(faces[0].0);
     while let Some(f) = queue.pop_front() {
         for g in adj.neighbours[f as usize].iter().flatten() {
-            if member.contains_key(g) && seen.insert(*g, ()).is_none() {
+            if sets.is_member(*g) && sets.reach(*g) {
                 queue.push_back(*g);
             }
         }
     }
-    if seen.len() != faces.len() {
+    if sets.reached() != faces.len() {
         return false;
     }
     // Edges: interior if crossable to a member, else boundary.
-    let mut vertices: FxHashMap<u32, u32> = FxHashMap::default();
     let (mut interior2, mut boundary) = (0usize, Vec::new());
     for f in faces {
         let face = mesh.faces[f.idx()];
         for k in 0..3 {
-            vertices.entry(face[k].0).or_insert(0);
+            sets.add_vertex(face[k].0);
             match adj.neighbours[f.idx()][k] {
-                Some(g) if member.contains_key(&g) => interior2 += 1,
+                Some(g) if sets.is_member(g) => interior2 += 1,
                 _ => boundary.push((face[k].0, face[(k + 1) % 3].0)),
             }
         }
     }
     let edges = interior2 / 2 + boundary.len();
-    let euler = vertices.len() as i64 - edges as i64 + faces.len() as i64;
+    let euler = sets.vertices() as i64 - edges as i64 + faces.len() as i64;
     if euler != 1 || boundary.is_empty() {
         return false;
     }
     for &(a, b) in &boundary {
-        *vertices.get_mut(&a).unwrap() += 1;
-        *vertices.get_mut(&b).unwrap() += 1;
+        sets.bump(a);
+        sets.bump(b);
     }
-    if vertices.values().any(|&d| d != 0 && d != 2) {
+    if sets.bad_degree() {
         return false;
     }
     // One loop: walk it from the first boundary edge.
-    let next: FxHashMap<u32, u32> = boundary.iter().copied().collect();
-    if next.len() != boundary.len() {
-        return false;
+    for &(a, b) in &boundary {
+        if !sets.set_next(a, b) {
+            return false;
+        }
     }
     let start = boundary[0].0;
     let (mut v, mut steps) = (start, 0);
     loop {
-        match next.get(&v) {
-            Some(&w) => {
+        match sets.next(v) {
+            Some(w) => {
                 v = w;
                 steps += 1;
             }
@@ -462,6 +636,62 @@ mod tests {
             "every face in exactly one chart"
         );
         c
+    }
+
+    #[test]
+    fn stamped_and_hashed_disk_tests_agree() {
+        // Random face sets grown from seeds (disks, annuli, pinches, several pieces), some
+        // with a duplicated face, on closed, holed and non-manifold meshes; one set of
+        // stamped arrays serves every test in turn, as in `merge_small`. Its stamp starts
+        // near the top, so the wrap-around is crossed too.
+        let sphere = icosphere(3);
+        let mut nm = with_fins(&sphere, 3, 50, 1.5);
+        nm.faces[7] = [nm.faces[7][0], nm.faces[7][2], nm.faces[7][1]];
+        let meshes = [sphere.clone(), with_holes(&sphere, 17), nm];
+        let mut rng = crate::rng::SplitMix64::new(11);
+        let (mut disks, mut others) = (0, 0);
+        for mesh in &meshes {
+            let adj = Adjacency::new(mesh);
+            let mut stamped = StampedSets::new(mesh.num_faces(), mesh.num_vertices());
+            stamped.stamp = u32::MAX - 20;
+            for t in 0..200 {
+                let n = mesh.num_faces();
+                let want = 1 + (rng.next_u64() % 60) as usize;
+                let mut faces: Vec<FaceId> = Vec::new();
+                let mut queue = VecDeque::new();
+                for _ in 0..1 + t % 3 {
+                    queue.push_back((rng.next_u64() % n as u64) as u32);
+                }
+                let mut taken = vec![false; n];
+                while let Some(f) = queue.pop_front() {
+                    if faces.len() >= want || taken[f as usize] {
+                        continue;
+                    }
+                    taken[f as usize] = true;
+                    faces.push(FaceId(f));
+                    for g in adj.neighbours[f as usize].iter().flatten() {
+                        if !rng.next_u64().is_multiple_of(4) {
+                            queue.push_back(*g);
+                        }
+                    }
+                }
+                if t % 17 == 0 {
+                    faces.push(faces[0]);
+                }
+                let hashed = is_disk(mesh, &adj, &faces);
+                assert_eq!(
+                    disk_test(mesh, &adj, &faces, &mut stamped),
+                    hashed,
+                    "set {t}"
+                );
+                if hashed {
+                    disks += 1;
+                } else {
+                    others += 1;
+                }
+            }
+        }
+        assert!(disks > 50 && others > 50, "{disks} disks, {others} others");
     }
 
     #[test]
