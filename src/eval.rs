@@ -649,6 +649,21 @@ fn mean_region(
     })
 }
 
+impl EvalReport {
+    /// The rows of one region's table: each image, then the mean, that has scores there
+    /// (`of`: the unseen or the seen ones).
+    fn region_rows(
+        &self,
+        of: impl Fn(&ImageScore) -> Option<&UnseenScore>,
+    ) -> Vec<(&str, &UnseenScore)> {
+        self.images
+            .iter()
+            .chain(self.mean.iter())
+            .filter_map(|s| of(s).map(|u| (s.name.as_str(), u)))
+            .collect()
+    }
+}
+
 impl std::fmt::Display for EvalReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
@@ -663,12 +678,7 @@ impl std::fmt::Display for EvalReport {
                 s.name, s.pixels, s.psnr, s.ssim, s.one_minus_ncc, s.completeness
             )?;
         }
-        let with_unseen: Vec<(&str, &UnseenScore)> = self
-            .images
-            .iter()
-            .chain(self.mean.iter())
-            .filter_map(|s| s.unseen.as_ref().map(|u| (s.name.as_str(), u)))
-            .collect();
+        let with_unseen = self.region_rows(|s| s.unseen.as_ref());
         if !with_unseen.is_empty() {
             writeln!(
                 f,
@@ -689,12 +699,7 @@ impl std::fmt::Display for EvalReport {
                 )?;
             }
         }
-        let with_seen: Vec<(&str, &UnseenScore)> = self
-            .images
-            .iter()
-            .chain(self.mean.iter())
-            .filter_map(|s| s.seen.as_ref().map(|u| (s.name.as_str(), u)))
-            .collect();
+        let with_seen = self.region_rows(|s| s.seen.as_ref());
         if !with_seen.is_empty() {
             writeln!(
                 f,
