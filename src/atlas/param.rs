@@ -365,29 +365,7 @@ fn lscm(faces: &[[u32; 3]], pos: &[Point3<f64>]) -> Option<Vec<Vector2<f64>>> {
     // fill-reducing ordering) solves it exactly, in time close to linear for surface meshes;
     // conjugate gradients needed thousands of iterations on charts of 10^5 vertices.
     use faer::linalg::solvers::Solve;
-    use faer::sparse::{SparseColMat, Triplet};
-    let mut trip: Vec<Triplet<u32, u32, f64>> = Vec::with_capacity(faces.len() * 21);
-    for (t, c) in faces.iter().zip(&coeffs) {
-        // Unknown and its coefficients in rows r1 and r2.
-        let mut cols: Vec<(u32, f64, f64)> = Vec::with_capacity(6);
-        for k in 0..3 {
-            let vi = t[k] as usize;
-            if idx[vi] != usize::MAX {
-                let (a, b) = c[k];
-                cols.push((2 * idx[vi] as u32, a, b));
-                cols.push((2 * idx[vi] as u32 + 1, -b, a));
-            }
-        }
-        for &(i, ri1, ri2) in &cols {
-            for &(j, rj1, rj2) in &cols {
-                if i >= j {
-                    trip.push(Triplet::new(i, j, ri1 * rj1 + ri2 * rj2));
-                }
-            }
-        }
-    }
-    let a = SparseColMat::<u32, f64>::try_new_from_triplets(2 * m, 2 * m, &trip).ok()?;
-    drop(trip);
+    let a = lscm_normal_matrix(faces, &coeffs, &idx, m)?;
     let llt = a.sp_cholesky(faer::Side::Lower).ok()?;
     let x = llt.solve(faer::Mat::<f64>::from_fn(2 * m, 1, |i, _| rhs[i]));
     let x: Vec<f64> = (0..2 * m).map(|i| x[(i, 0)]).collect();
@@ -410,6 +388,127 @@ fn lscm(faces: &[[u32; 3]], pos: &[Point3<f64>]) -> Option<Vec<Vector2<f64>>> {
     } else {
         uv
     })
+}
+
+/// The lower triangle of LSCM's normal matrix `A^T A` in compressed columns, built directly:
+/// free vertex `p` owns columns `2p` (u) and `2p + 1` (v), whose rows are its own 2 x 2
+/// block's lower triangle and then, for each free neighbour `q > p` in order, rows `2q` and
+/// `2q + 1`. Building it from one triplet per block entry (21 per triangle) spent about a
+/// third of LSCM's time in the triplets' sort (`docs/decisions.md`, "LSCM's matrix built in
+/// columns"). `coeffs` are each triangle's residual coefficients, `idx` each vertex's unknown
+/// (`usize::MAX` if pinned). `None` if its entries do not fit `u32` indices.
+fn lscm_normal_matrix(
+    faces: &[[u32; 3]],
+    coeffs: &[[(f64, f64); 3]],
+    idx: &[usize],
+    m: usize,
+) -> Option<faer::sparse::SparseColMat<u32, f64>> {
+    use faer::sparse::{SparseColMat, SymbolicSparseColMat};
+    let free = |t: &[u32; 3]| t.map(|v| idx[v as usize]);
+    // Neighbours q > p of each free vertex p: counted, filled, then sorted and deduplicated
+    // in place (each list holds a vertex's few edges, so the sorts are short).
+    let mut start = vec![0usize; m + 1];
+    for t in faces {
+        let f = free(t);
+        for a in 0..3 {
+            for b in 0..3 {
+                if f[a] != usize::MAX && f[b] != usize::MAX && f[a] < f[b] {
+                    start[f[a] + 1] += 1;
+                }
+            }
+        }
+    }
+    for p in 0..m {
+        start[p + 1] += start[p];
+    }
+    let mut nb = vec![0u32; start[m]];
+    let mut fill = start.clone();
+    for t in faces {
+        let f = free(t);
+        for a in 0..3 {
+            for b in 0..3 {
+                if f[a] != usize::MAX && f[b] != usize::MAX && f[a] < f[b] {
+                    nb[fill[f[a]]] = f[b] as u32;
+                    fill[f[a]] += 1;
+                }
+            }
+        }
+    }
+    let mut deg = vec![0usize; m + 1];
+    let mut out = 0;
+    for p in 0..m {
+        let list = &mut nb[start[p]..start[p + 1]];
+        list.sort_unstable();
+        let mut k = 0;
+        for i in 0..list.len() {
+            if i == 0 || list[i] != list[i - 1] {
+                list[k] = list[i];
+                k += 1;
+            }
+        }
+        nb.copy_within(start[p]..start[p] + k, out);
+        deg[p + 1] = deg[p] + k;
+        out += k;
+    }
+    nb.truncate(out);
+    if 3 * m + 4 * out >= u32::MAX as usize {
+        return None;
+    }
+    // Column p's first entry, for both of its columns.
+    let mut col_ptr = Vec::with_capacity(2 * m + 1);
+    let mut row_idx = Vec::with_capacity(2 * m + 4 * out);
+    col_ptr.push(0u32);
+    for p in 0..m {
+        let list = &nb[deg[p]..deg[p + 1]];
+        for s in 0..2 {
+            row_idx.extend((s..2).map(|r| (2 * p + r) as u32));
+            for &q in list {
+                row_idx.extend([2 * q, 2 * q + 1]);
+            }
+            col_ptr.push(row_idx.len() as u32);
+        }
+    }
+    let mut val = vec![0f64; row_idx.len()];
+    for (t, c) in faces.iter().zip(coeffs) {
+        let f = free(t);
+        for (ka, &p) in f.iter().enumerate() {
+            if p == usize::MAX {
+                continue;
+            }
+            for (kb, &q) in f.iter().enumerate() {
+                if q == usize::MAX || q < p {
+                    continue;
+                }
+                // Rows (q's u, q's v) against columns (p's u, p's v): the coefficients of
+                // u and v in the residual rows r1 and r2 are (a, b) and (-b, a).
+                let (a1, b1) = c[ka];
+                let (a2, b2) = c[kb];
+                let colp = [(a1, b1), (-b1, a1)];
+                let rowq = [(a2, b2), (-b2, a2)];
+                let k = if q == p {
+                    usize::MAX
+                } else {
+                    nb[deg[p]..deg[p + 1]].partition_point(|&x| (x as usize) < q)
+                };
+                for (sc, &(ci1, ci2)) in colp.iter().enumerate() {
+                    let base = col_ptr[2 * p + sc] as usize;
+                    for (sr, &(ri1, ri2)) in rowq.iter().enumerate() {
+                        let at = if k == usize::MAX {
+                            if sr < sc {
+                                continue;
+                            }
+                            base + sr - sc
+                        } else {
+                            base + (2 - sc) + 2 * k + sr
+                        };
+                        val[at] += ri1 * ci1 + ri2 * ci2;
+                    }
+                }
+            }
+        }
+    }
+    let symbolic = SymbolicSparseColMat::new_checked(2 * m, 2 * m, col_ptr, None, row_idx);
+    Some(SparseColMat::new(symbolic, val))
 }
 
 /// Directed boundary edges of a disk's faces, as a map from start to end vertex.
@@ -687,6 +786,62 @@ fn bicgstab(rows: &[Vec<(usize, f64)>], diag: &[f64], b: &[f64]) -> Vec<f64> {
 mod tests {
     use super::*;
     use crate::atlas::segment::{segment, SegmentOptions};
+
+    /// LSCM's matrix built in columns holds the entries that faer builds from one triplet per
+    /// block entry (the old assembly), with the same values up to the order of the sums, on
+    /// a polar grid with unknowns numbered out of vertex order, two pinned vertices and a
+    /// degenerate triangle that repeats a vertex.
+    #[test]
+    fn lscm_matrix_in_columns_matches_triplets() {
+        use faer::sparse::{SparseColMat, Triplet};
+        let mesh = crate::atlas::test_meshes::polar_grid(5, 16, |r, k| {
+            Point3::new(r as f64, k as f64, 0.0)
+        });
+        let mut faces: Vec<[u32; 3]> = mesh.faces.iter().map(|f| f.map(|v| v.0)).collect();
+        faces.push([3, 7, 3]);
+        let n = mesh.positions.len();
+        let mut rng = crate::rng::SplitMix64::new(7);
+        let mut unit = || (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+        let coeffs: Vec<[(f64, f64); 3]> = faces
+            .iter()
+            .map(|_| std::array::from_fn(|_| (unit(), unit())))
+            .collect();
+        // Unknowns in reverse vertex order, vertices 0 and 5 pinned.
+        let mut idx = vec![usize::MAX; n];
+        let mut m = 0;
+        for v in (0..n).rev() {
+            if v != 0 && v != 5 {
+                idx[v] = m;
+                m += 1;
+            }
+        }
+        let mut trip = Vec::new();
+        for (t, c) in faces.iter().zip(&coeffs) {
+            let mut cols: Vec<(u32, f64, f64)> = Vec::new();
+            for k in 0..3 {
+                let vi = t[k] as usize;
+                if idx[vi] != usize::MAX {
+                    let (a, b) = c[k];
+                    cols.push((2 * idx[vi] as u32, a, b));
+                    cols.push((2 * idx[vi] as u32 + 1, -b, a));
+                }
+            }
+            for &(i, ri1, ri2) in &cols {
+                for &(j, rj1, rj2) in &cols {
+                    if i >= j {
+                        trip.push(Triplet::new(i, j, ri1 * rj1 + ri2 * rj2));
+                    }
+                }
+            }
+        }
+        let want = SparseColMat::<u32, f64>::try_new_from_triplets(2 * m, 2 * m, &trip).unwrap();
+        let got = lscm_normal_matrix(&faces, &coeffs, &idx, m).unwrap();
+        assert_eq!(got.symbolic().col_ptr(), want.symbolic().col_ptr());
+        assert_eq!(got.symbolic().row_idx(), want.symbolic().row_idx());
+        for (g, w) in got.val().iter().zip(want.val()) {
+            assert!((g - w).abs() <= 1e-12 * (1.0 + w.abs()), "{g} against {w}");
+        }
+    }
 
     /// A planar disk (a triangulated polygon in a tilted plane) maps isometrically.
     #[test]
