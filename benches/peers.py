@@ -28,9 +28,11 @@ Scenes:
 Times come from /usr/bin/time (wall, user + system, maximum resident set), one run per tool.
 """
 import argparse
+import importlib.util
 import json
 import os
 import shlex
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -144,6 +146,17 @@ def main():
     EXTRA = shlex.split(a.scantex_args)
     if not os.path.exists(BIN):
         sys.exit("build first: cargo build --release")
+    # What MeshLab's run needs, checked before any scene is timed (each missing piece used to
+    # surface only after scantex's runs, as a traceback or as MeshLab's bare "Aborted").
+    missing = [m for m in ("pymeshlab", "pycolmap", "numpy")
+               if importlib.util.find_spec(m) is None]
+    if missing:
+        sys.exit(f"missing Python modules: pip install {' '.join(missing)}")
+    if shutil.which("xvfb-run") is None:
+        sys.exit("xvfb-run not found: apt-get install xvfb")
+    if not os.path.exists(os.path.join(QT, "platforms", "libqxcb.so")):
+        sys.exit(f"Qt's xcb platform plugin is not in {QT}/platforms (MeshLab's filter aborts "
+                 "without it): apt-get install libqt5gui5 libgl1-mesa-dri")
     scenes = a.scenes.split(",")
     with tempfile.TemporaryDirectory() as tmp:
         if "sample" in scenes:
