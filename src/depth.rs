@@ -261,19 +261,21 @@ fn raster_depth(
     mut put: impl FnMut(usize, usize, f32),
 ) {
     let [a, b, c] = t;
-    let area = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
-    if area.abs() < 1e-12 || r0 > r1 {
-        return;
-    }
-    let inv = 1.0 / area;
-    let (iza, izb, izc) = (1.0 / a[2], 1.0 / b[2], 1.0 / c[2]);
+    // The columns first: many faces of a dense mesh cover no pixel centre, and for them the
+    // four divisions below are wasted.
     let xlo = a[0].min(b[0]).min(c[0]);
     let xhi = a[0].max(b[0]).max(c[0]);
     let x0 = (xlo - 0.5).ceil().max(0.0) as usize;
     let x1 = ((xhi - 0.5).floor() as i64).min(width as i64 - 1);
-    if x1 < x0 as i64 {
+    if x1 < x0 as i64 || r0 > r1 {
         return;
     }
+    let area = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
+    if area.abs() < 1e-12 {
+        return;
+    }
+    let inv = 1.0 / area;
+    let (iza, izb, izc) = (1.0 / a[2], 1.0 / b[2], 1.0 / c[2]);
     for y in r0..=r1 {
         let py = y as f64 + 0.5;
         for x in x0..=x1 as usize {
