@@ -454,7 +454,7 @@ fn lscm_normal_matrix(
     if 3 * m + 4 * out >= u32::MAX as usize {
         return None;
     }
-    // Column p's first entry, for both of its columns.
+    // Each free vertex's two columns, u then v.
     let mut col_ptr = Vec::with_capacity(2 * m + 1);
     let mut row_idx = Vec::with_capacity(2 * m + 4 * out);
     col_ptr.push(0u32);
@@ -485,21 +485,17 @@ fn lscm_normal_matrix(
                 let (a2, b2) = c[kb];
                 let colp = [(a1, b1), (-b1, a1)];
                 let rowq = [(a2, b2), (-b2, a2)];
-                let k = if q == p {
-                    usize::MAX
-                } else {
-                    nb[deg[p]..deg[p + 1]].partition_point(|&x| (x as usize) < q)
-                };
+                // The neighbour's place in p's list; None for p's own block.
+                let k =
+                    (q != p).then(|| nb[deg[p]..deg[p + 1]].partition_point(|&x| (x as usize) < q));
                 for (sc, &(ci1, ci2)) in colp.iter().enumerate() {
                     let base = col_ptr[2 * p + sc] as usize;
                     for (sr, &(ri1, ri2)) in rowq.iter().enumerate() {
-                        let at = if k == usize::MAX {
-                            if sr < sc {
-                                continue;
-                            }
-                            base + sr - sc
-                        } else {
-                            base + (2 - sc) + 2 * k + sr
+                        let at = match k {
+                            // The own block's lower triangle only.
+                            None if sr < sc => continue,
+                            None => base + sr - sc,
+                            Some(k) => base + (2 - sc) + 2 * k + sr,
                         };
                         val[at] += ri1 * ci1 + ri2 * ci2;
                     }
