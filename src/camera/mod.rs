@@ -124,7 +124,10 @@ pub struct Camera {
 }
 
 impl Camera {
-    /// A camera, checking that `params` has the length `model` needs and is finite.
+    /// A camera, checking that `params` has the length `model` needs and is finite, that the
+    /// focal lengths are positive and that the image has pixels (a zero or negative focal
+    /// length projects every point to the principal point or mirrors the image: no
+    /// calibration writes one, and it would bind the mesh to wrong colours silently).
     pub fn new(
         id: u32,
         model: CameraModel,
@@ -142,6 +145,26 @@ impl Camera {
         }
         if let Some(i) = params.iter().position(|p| !p.is_finite()) {
             return Err(format!("camera {id}: parameter {i} is not finite"));
+        }
+        if model == CameraModel::Equirectangular {
+            if !(params[0] > 0.0 && params[1] > 0.0) {
+                return Err(format!(
+                    "camera {id}: panorama size {} x {} must be positive",
+                    params[0], params[1]
+                ));
+            }
+        } else {
+            let (fx, fy, _, _) = model.intrinsics(&params);
+            if !(fx > 0.0 && fy > 0.0) {
+                return Err(format!(
+                    "camera {id}: focal lengths {fx} and {fy} must be positive"
+                ));
+            }
+        }
+        if width == 0 || height == 0 {
+            return Err(format!(
+                "camera {id}: image size {width} x {height} has no pixels"
+            ));
         }
         Ok(Camera {
             id,

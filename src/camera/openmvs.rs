@@ -295,12 +295,6 @@ pub fn parse(
             vec![k[(0, 0)], k[(1, 1)], k[(0, 2)], k[(1, 2)]],
         )
         .map_err(bad)?;
-        if !(camera.params[0] > 0.0 && camera.params[1] > 0.0) {
-            return Err(bad(format!(
-                "focal lengths {} and {} are not positive",
-                camera.params[0], camera.params[1]
-            )));
-        }
         let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
         rec.cameras.insert(id, camera);
         rec.images.insert(

@@ -233,6 +233,42 @@ fn wrong_parameter_count() {
 }
 
 #[test]
+fn focal_lengths_that_are_not_positive_and_empty_images() {
+    // A zero focal length images every point at the principal point, a negative one mirrors
+    // the photograph: both once bound the mesh to wrong colours without a word.
+    for (from, to, says) in [
+        (
+            " 50 50 ",
+            " 0 50 ",
+            "focal lengths 0 and 50 must be positive",
+        ),
+        (
+            " 50 50 ",
+            " -50 -50 ",
+            "focal lengths -50 and -50 must be positive",
+        ),
+        (" 64 48 ", " 0 48 ", "image size 0 x 48 has no pixels"),
+    ] {
+        let d = setup();
+        edit(&d.path().join("sparse/cameras.txt"), from, to);
+        let err = fails(d.path(), &["."]);
+        assert!(err.contains("cameras.txt:4") && err.contains(says), "{err}");
+    }
+    // The same check holds for the binary model's reader.
+    let d = binary_scene();
+    let p = d.path().join("sparse/cameras.bin");
+    let mut b = std::fs::read(&p).unwrap();
+    // After the count (8), id (4), model (4), width and height (8 each): fx as f64.
+    b[32..40].copy_from_slice(&(-50f64).to_le_bytes());
+    std::fs::write(&p, b).unwrap();
+    let err = fails(d.path(), &["."]);
+    assert!(
+        err.contains("cameras.bin") && err.contains("focal lengths -50 and 50 must be positive"),
+        "{err}"
+    );
+}
+
+#[test]
 fn image_references_missing_camera() {
     let d = setup();
     edit(
