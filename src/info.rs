@@ -226,6 +226,9 @@ impl fmt::Display for InfoReport {
             if m.load.degenerate_faces > 0 {
                 writeln!(f, "  degenerate (skipped) {}", m.load.degenerate_faces)?;
             }
+            if m.load.duplicate_faces > 0 {
+                writeln!(f, "  repeated (skipped)   {}", m.load.duplicate_faces)?;
+            }
             if m.load.polygons_triangulated > 0 {
                 writeln!(f, "  polygons split       {}", m.load.polygons_triangulated)?;
             }

@@ -1151,7 +1151,7 @@ pub fn texture_scene(
     opts.validate()?;
     let staged = begin_outputs(out, debug)?;
     let scene = crate::scene::Scene::load(spec)?;
-    let Some((mesh, _)) = &scene.mesh else {
+    let Some((mesh, load)) = &scene.mesh else {
         return Err(Error::Invalid(
             "texturing needs a mesh: give a scene directory with mesh.(ply|obj|glb) or --mesh"
                 .into(),
@@ -1164,6 +1164,20 @@ pub fn texture_scene(
         ));
     }
     let mut warnings = Vec::new();
+    // What the reader dropped changes the output mesh's faces: said, not silent.
+    for (n, which) in [
+        (load.degenerate_faces, "with a repeated corner or zero area"),
+        (
+            load.duplicate_faces,
+            "that repeat an earlier face's vertices",
+        ),
+    ] {
+        if n > 0 {
+            let w = format!("left out {n} faces of the mesh {which}");
+            progress.warn(&w);
+            warnings.push(w);
+        }
+    }
     for b in &scene.bad {
         let w = format!("left out photograph {}: {}", b.name, b.reason);
         progress.warn(&w);

@@ -42,7 +42,7 @@ impl MeshFormat {
 }
 
 /// Reads a mesh (OBJ, PLY, glTF or GLB, by extension), validates it and drops degenerate
-/// faces. The report says what was dropped or triangulated.
+/// and repeated faces. The report says what was dropped or triangulated.
 pub fn read_mesh(path: &Path) -> Result<(Mesh, LoadReport)> {
     let format = MeshFormat::from_path(path).ok_or_else(|| {
         Error::at_element(
@@ -64,6 +64,7 @@ pub fn read_mesh(path: &Path) -> Result<(Mesh, LoadReport)> {
     };
     let v = mesh.validate(path)?;
     report.degenerate_faces += v.degenerate_faces;
+    report.duplicate_faces += v.duplicate_faces;
     Ok((mesh, report))
 }
 

@@ -93,6 +93,10 @@ pub struct Mesh {
 pub struct LoadReport {
     /// Faces removed because two corners share a vertex or the triangle has zero area.
     pub degenerate_faces: usize,
+    /// Faces removed because an earlier face has the same three vertices (in either
+    /// orientation): a second copy of a surface makes every edge non-manifold, so each face
+    /// became a chart of its own.
+    pub duplicate_faces: usize,
     /// Polygons with more than three corners, split into triangles.
     pub polygons_triangulated: usize,
 }
@@ -140,7 +144,8 @@ impl Mesh {
         total / (3 * self.faces.len()) as f64
     }
 
-    /// Checks what every reader must guarantee and drops degenerate faces: at least one face,
+    /// Checks what every reader must guarantee and drops degenerate and repeated faces: at
+    /// least one face,
     /// finite positions, indices in range. `path` names the file in errors.
     pub fn validate(&mut self, path: &Path) -> Result<LoadReport> {
         let mut report = LoadReport::default();
@@ -222,15 +227,7 @@ impl Mesh {
                 a != b && b != c && a != c && self.face_normal_area(FaceId(f as u32)).norm() > 0.0
             })
             .collect();
-        report.degenerate_faces = keep.iter().filter(|k| !**k).count();
-        if report.degenerate_faces > 0 {
-            let mut it = keep.iter();
-            self.faces.retain(|_| *it.next().unwrap());
-            if let Some(uv) = &mut self.uv {
-                let mut it = keep.iter();
-                uv.faces.retain(|_| *it.next().unwrap());
-            }
-        }
+        report.degenerate_faces = self.retain_faces(&keep);
         if self.faces.is_empty() {
             return Err(Error::at_element(
                 path,
@@ -238,7 +235,34 @@ impl Mesh {
                 "the mesh has no (non-degenerate) triangles",
             ));
         }
+        // Drop repeated faces (the same vertices, either orientation), keeping the first.
+        let mut seen = rustc_hash::FxHashSet::default();
+        seen.reserve(self.faces.len());
+        let keep: Vec<bool> = self
+            .faces
+            .iter()
+            .map(|f| {
+                let mut k = f.map(|v| v.0);
+                k.sort_unstable();
+                seen.insert(k)
+            })
+            .collect();
+        report.duplicate_faces = self.retain_faces(&keep);
         Ok(report)
+    }
+
+    /// Keeps the faces (and their texture coordinates) `keep` marks; returns how many went.
+    fn retain_faces(&mut self, keep: &[bool]) -> usize {
+        let dropped = keep.iter().filter(|k| !**k).count();
+        if dropped > 0 {
+            let mut it = keep.iter();
+            self.faces.retain(|_| *it.next().unwrap());
+            if let Some(uv) = &mut self.uv {
+                let mut it = keep.iter();
+                uv.faces.retain(|_| *it.next().unwrap());
+            }
+        }
+        dropped
     }
 
     /// Axis-aligned bounding box `(min, max)`.
@@ -485,6 +509,26 @@ mod tests {
         let r = m.validate(Path::new("t.obj")).unwrap();
         assert_eq!(r.degenerate_faces, 1);
         assert_eq!(m.faces.len(), 4);
+
+        // A face repeated, once as it is and once turned over: both copies go, the first
+        // stays, and texture coordinates stay aligned with their faces.
+        let mut m = tetra();
+        let f1 = m.faces[1];
+        m.faces.push(f1);
+        m.faces.push([f1[2], f1[1], f1[0]]);
+        let faces = m.faces.clone();
+        m.uv = Some(UvMap {
+            coords: vec![Vector2::new(0.0, 0.0); 3],
+            faces: (0..faces.len() as u32).map(|k| [k % 3, 0, 0]).collect(),
+        });
+        let r = m.validate(Path::new("t.obj")).unwrap();
+        assert_eq!((r.degenerate_faces, r.duplicate_faces), (0, 2));
+        assert_eq!(m.faces, faces[..4]);
+        let uv = m.uv.as_ref().unwrap();
+        assert_eq!(
+            uv.faces,
+            (0..4u32).map(|k| [k % 3, 0, 0]).collect::<Vec<_>>()
+        );
 
         let mut m = tetra();
         m.faces.push([v(0), v(1), v(9)]);

@@ -342,6 +342,50 @@ fn face_index_out_of_range() {
 }
 
 #[test]
+fn repeated_faces_are_left_out_with_a_warning() {
+    // Every face twice, the copy turned over: each edge then has four faces, and every face
+    // became a chart of its own (the sample took 93 s instead of 4).
+    let d = setup();
+    std::fs::write(
+        d.path().join("mesh.obj"),
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 1 4 3\n\
+         f 2 3 1\nf 4 2 1\nf 4 3 2\nf 3 4 1\n",
+    )
+    .unwrap();
+    let info = Command::new(env!("CARGO_BIN_EXE_scantex"))
+        .args(["info", "."])
+        .current_dir(d.path())
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&info.stdout);
+    assert!(info.status.success(), "{text}");
+    assert!(text.contains("repeated (skipped)   4"), "{text}");
+    // Textured: the sample with its faces repeated, turned over.
+    let t = tempfile::tempdir().unwrap();
+    common::copy_dir(&common::root().join("samples/torus"), t.path());
+    let (mut mesh, _) = scantex::io::read_mesh(&t.path().join("mesh.ply")).unwrap();
+    let n = mesh.faces.len();
+    let turned: Vec<_> = mesh.faces.iter().map(|f| [f[2], f[1], f[0]]).collect();
+    mesh.faces.extend(turned);
+    scantex::io::write_mesh(&t.path().join("mesh.ply"), &mesh, None).unwrap();
+    let out = t.path().join("out");
+    let run = Command::new(env!("CARGO_BIN_EXE_scantex"))
+        .args(["texture", ".", "-q", "--size", "512", "-o"])
+        .arg(&out)
+        .current_dir(t.path())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{err}");
+    let said = format!("left out {n} faces of the mesh that repeat an earlier face's vertices");
+    assert!(err.contains(&said), "{err}");
+    let obj = std::fs::read_to_string(out.join("model.obj")).unwrap();
+    assert_eq!(obj.lines().filter(|l| l.starts_with("f ")).count(), n);
+    let report = std::fs::read_to_string(out.join("report.json")).unwrap();
+    assert!(report.contains(&said), "{report}");
+}
+
+#[test]
 fn empty_mesh() {
     let d = setup();
     std::fs::write(d.path().join("mesh.obj"), "# nothing here\n").unwrap();
