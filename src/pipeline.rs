@@ -1164,19 +1164,9 @@ pub fn texture_scene(
         ));
     }
     let mut warnings = Vec::new();
-    // What the reader dropped changes the output mesh's faces: said, not silent.
-    for (n, which) in [
-        (load.degenerate_faces, "with a repeated corner or zero area"),
-        (
-            load.duplicate_faces,
-            "that repeat an earlier face's vertices",
-        ),
-    ] {
-        if n > 0 {
-            let w = format!("left out {n} faces of the mesh {which}");
-            progress.warn(&w);
-            warnings.push(w);
-        }
+    for w in load.warnings() {
+        progress.warn(&w);
+        warnings.push(w);
     }
     for b in &scene.bad {
         let w = format!("left out photograph {}: {}", b.name, b.reason);
@@ -1227,7 +1217,10 @@ pub fn param_file(
     let mut dirs = vec![io::staging::dir_of(out)];
     dirs.extend(report.map(io::staging::dir_of));
     let mut staged = Staged::begin(&io::staging::label_of(out), &dirs)?;
-    let (input, _) = io::read_mesh(mesh)?;
+    let (input, load) = io::read_mesh(mesh)?;
+    for w in load.warnings() {
+        progress.warn(&w);
+    }
     let (out_mesh, rep) = atlas::parameterize_reporting(&input, opts, progress)?;
     let picture = atlas::layout_picture(&out_mesh, opts.pack.size.min(2048));
     let png = io::image::encode_png(&DynamicImage::ImageRgb8(picture))?;

@@ -101,6 +101,24 @@ pub struct LoadReport {
     pub polygons_triangulated: usize,
 }
 
+impl LoadReport {
+    /// One warning per kind of face left out: what a job writes has fewer faces than the
+    /// file, which must be said, not silent.
+    pub fn warnings(&self) -> Vec<String> {
+        [
+            (self.degenerate_faces, "with a repeated corner or zero area"),
+            (
+                self.duplicate_faces,
+                "that repeat an earlier face's vertices",
+            ),
+        ]
+        .into_iter()
+        .filter(|&(n, _)| n > 0)
+        .map(|(n, which)| format!("left out {n} faces of the mesh {which}"))
+        .collect()
+    }
+}
+
 impl Mesh {
     /// Number of vertices.
     pub fn num_vertices(&self) -> usize {
@@ -145,8 +163,7 @@ impl Mesh {
     }
 
     /// Checks what every reader must guarantee and drops degenerate and repeated faces: at
-    /// least one face,
-    /// finite positions, indices in range. `path` names the file in errors.
+    /// least one face, finite positions, indices in range. `path` names the file in errors.
     pub fn validate(&mut self, path: &Path) -> Result<LoadReport> {
         let mut report = LoadReport::default();
         if let Some(i) = self
